@@ -1,0 +1,132 @@
+//! `jsae`: the launcher and tools. `jsae train` runs a whole training on this machine and
+//! prints its summary; `jsae bench` measures PPO updates and inference on both devices.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Parser, Subcommand};
+use jsae_actor::envs::EnvName;
+use jsae_actor::progress::Progress;
+use jsae_actor::{train_one_process, Algo, TrainConfig};
+use jsae_embedder::nn::DeviceKind;
+
+#[derive(Parser, Debug)]
+#[command(name = "jsae", version, about = "JSAE-RL launcher and tools")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Train on this machine (embedder, learner and actors) and print the summary.
+    Train(TrainArgs),
+    /// Measure PPO update throughput and inference latency on both burn devices.
+    Bench {
+        /// Fewer repetitions (a smoke run).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+#[derive(Args, Debug)]
+struct TrainArgs {
+    /// Environment [default: gridworld-discrete].
+    #[arg(long, value_enum, env = "JSAE_ENV")]
+    env: Option<EnvName>,
+    /// Algorithm [default: jsae].
+    #[arg(long, value_enum, env = "JSAE_ALGO")]
+    algo: Option<Algo>,
+    /// Seed [default: 1].
+    #[arg(long, env = "JSAE_SEED")]
+    seed: Option<u64>,
+    /// Env steps of the whole run [default: 500000].
+    #[arg(long, env = "JSAE_ENV_STEPS")]
+    env_steps: Option<u64>,
+    /// Actor workers [default: 1].
+    #[arg(long, env = "JSAE_ACTORS")]
+    actors: Option<usize>,
+    /// Environments per actor [default: 16].
+    #[arg(long, env = "JSAE_ENVS")]
+    envs: Option<usize>,
+    /// Run directory [default: runs/ENV-ALGO-seedN].
+    #[arg(long, env = "JSAE_OUT")]
+    out: Option<PathBuf>,
+    /// TOML file with any settings (see config.toml of a run for every key).
+    #[arg(long, env = "JSAE_CONFIG")]
+    config: Option<PathBuf>,
+    /// burn device [default: flex].
+    #[arg(long, value_enum, env = "JSAE_DEVICE")]
+    device: Option<DeviceKind>,
+    /// Deterministic evaluation episodes at the end [default: 20].
+    #[arg(long, env = "JSAE_EVAL_EPISODES")]
+    eval_episodes: Option<usize>,
+    /// Run every component in this process, in lockstep (the only mode until the gRPC
+    /// services exist; deterministic for a seed).
+    #[arg(long)]
+    one_process: bool,
+    /// No progress output.
+    #[arg(long)]
+    quiet: bool,
+}
+
+fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
+    let mut c = TrainConfig::from_layers(a.env, a.algo, a.config.as_deref()).map_err(|e| e.to_string())?;
+    c.seed = a.seed.unwrap_or(c.seed);
+    c.env_steps = a.env_steps.unwrap_or(c.env_steps);
+    c.actors = a.actors.unwrap_or(c.actors);
+    c.envs_per_actor = a.envs.unwrap_or(c.envs_per_actor);
+    c.device = a.device.unwrap_or(c.device);
+    c.eval_episodes = a.eval_episodes.unwrap_or(c.eval_episodes);
+    c.one_process = true;
+    if let Some(out) = &a.out {
+        c.out = out.clone();
+    }
+    if c.out.as_os_str().is_empty() {
+        c.out = PathBuf::from(format!("runs/{}-{}-seed{}", c.env.as_str(), c.algo.as_str(), c.seed));
+    }
+    c.validate().map_err(|e| e.to_string())?;
+    Ok(c)
+}
+
+fn main() -> ExitCode {
+    tracing_subscriber::fmt()
+        .with_env_filter(
+            tracing_subscriber::EnvFilter::try_from_default_env()
+                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
+        )
+        .with_writer(std::io::stderr)
+        .init();
+    let cli = Cli::parse();
+    match cli.command {
+        Command::Train(args) => {
+            let config = match build_config(&args) {
+                Ok(c) => c,
+                Err(reason) => {
+                    eprintln!("jsae train: {reason}");
+                    return ExitCode::from(2);
+                }
+            };
+            let mut progress = Progress::new(config.env_steps, args.quiet);
+            match train_one_process(&config, &mut progress) {
+                Ok(outcome) => {
+                    let json = serde_json::to_string_pretty(&outcome.summary).unwrap_or_default();
+                    println!("{json}");
+                    println!("run directory: {}", outcome.dir.display());
+                    for p in &outcome.plots {
+                        println!("plot: {}", p.display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae train: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Bench { quick } => {
+            print!("{}", jsae_actor::bench::run(quick));
+            ExitCode::SUCCESS
+        }
+    }
+}

@@ -1,0 +1,332 @@
+//! The run configuration: every setting of a training run, layered defaults -> file (TOML)
+//! -> environment variables and flags (clap), validated whole before anything starts, and
+//! saved as `config.toml` next to the results.
+
+use std::path::{Path, PathBuf};
+
+use jsae_embedder::nn::DeviceKind;
+use jsae_embedder::EmbeddingConfig;
+use jsae_learner::PpoConfig;
+use serde::{Deserialize, Serialize};
+
+use crate::envs::{validate_env_config, EnvConfig, EnvName};
+
+/// The algorithms `jsae train --algo` names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Algo {
+    /// PPO on jointly-learned state and action embeddings (the method).
+    Jsae,
+    /// PPO on raw states and actions (categorical for discrete actions).
+    Ppo,
+    /// PPO on auto-encoder embeddings (baseline; not available yet).
+    Ae,
+    /// PPO on Chandak et al. action representations (baseline; not available yet).
+    Ra,
+}
+
+impl Algo {
+    /// The name as written on the command line.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Jsae => "jsae",
+            Self::Ppo => "ppo",
+            Self::Ae => "ae",
+            Self::Ra => "ra",
+        }
+    }
+
+    /// Whether it learns embeddings with the embedder.
+    pub fn uses_embedding(self) -> bool {
+        matches!(self, Self::Jsae)
+    }
+}
+
+/// Every setting of a training run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Environment.
+    pub env: EnvName,
+    /// Algorithm.
+    pub algo: Algo,
+    /// Seed of everything (environments, initial weights, sampling, minibatch order).
+    pub seed: u64,
+    /// Env steps of the whole run (all actors, random pre-training steps included).
+    pub env_steps: u64,
+    /// Actor workers.
+    pub actors: usize,
+    /// Environments per actor, stepped together with batched inference.
+    pub envs_per_actor: usize,
+    /// Steps per environment per rollout fragment.
+    pub rollout_len: usize,
+    /// burn device.
+    pub device: DeviceKind,
+    /// Deterministic evaluation episodes at the end.
+    pub eval_episodes: usize,
+    /// Run directory.
+    pub out: PathBuf,
+    /// Run actor, embedder and learner in this process, in lockstep (deterministic for a
+    /// seed). Separate processes arrive with the gRPC services.
+    pub one_process: bool,
+    /// Environment settings.
+    #[serde(default)]
+    pub environment: EnvConfig,
+    /// Embedding model and trainer settings (JSAE).
+    #[serde(default)]
+    pub embedding: EmbeddingConfig,
+    /// PPO settings.
+    #[serde(default)]
+    pub ppo: PpoConfig,
+}
+
+/// A partial configuration as read from a file: whatever it sets overrides the defaults.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    /// See [`TrainConfig`].
+    pub env: Option<EnvName>,
+    /// See [`TrainConfig`].
+    pub algo: Option<Algo>,
+    /// See [`TrainConfig`].
+    pub seed: Option<u64>,
+    /// See [`TrainConfig`].
+    pub env_steps: Option<u64>,
+    /// See [`TrainConfig`].
+    pub actors: Option<usize>,
+    /// See [`TrainConfig`].
+    pub envs_per_actor: Option<usize>,
+    /// See [`TrainConfig`].
+    pub rollout_len: Option<usize>,
+    /// See [`TrainConfig`].
+    pub device: Option<DeviceKind>,
+    /// See [`TrainConfig`].
+    pub eval_episodes: Option<usize>,
+    /// See [`TrainConfig`].
+    pub out: Option<PathBuf>,
+    /// See [`TrainConfig`].
+    pub one_process: Option<bool>,
+    /// Environment settings (tables `[environment.gridworld]`, `[environment.slotmachine]`).
+    pub environment: Option<toml::Value>,
+    /// Embedding settings (`[embedding]`).
+    pub embedding: Option<toml::Value>,
+    /// PPO settings (`[ppo]`).
+    pub ppo: Option<toml::Value>,
+}
+
+/// Why a configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for this schema.
+    #[error("config file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("invalid setting: {0}")]
+    Invalid(String),
+}
+
+/// Merges `overlay` into `base`, table by table.
+fn merge(base: &mut toml::Value, overlay: toml::Value) {
+    match (base, overlay) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(existing) => merge(existing, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
+fn overlay<T: Serialize + serde::de::DeserializeOwned>(
+    base: &T,
+    part: Option<toml::Value>,
+    path: &Path,
+) -> Result<T, ConfigError> {
+    let Some(part) = part else {
+        return Ok(toml::Value::try_from(base)
+            .ok()
+            .and_then(|v| v.try_into().ok())
+            .unwrap_or_else(|| unreachable_roundtrip()));
+    };
+    let mut value = toml::Value::try_from(base).map_err(|e| ConfigError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    merge(&mut value, part);
+    value.try_into().map_err(|e: toml::de::Error| ConfigError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })
+}
+
+fn unreachable_roundtrip() -> ! {
+    panic!("a default configuration always round-trips through TOML")
+}
+
+impl TrainConfig {
+    /// The defaults for an environment and algorithm.
+    pub fn defaults(env: EnvName, algo: Algo) -> Self {
+        let mut embedding = EmbeddingConfig::default();
+        let mut ppo = PpoConfig::default();
+        if env == EnvName::Slotmachine {
+            embedding.state_dim = 8;
+            embedding.action_dim = 4;
+            ppo.gamma = 0.9;
+        }
+        if algo == Algo::Jsae {
+            ppo.gae_lambda = 0.97;
+        }
+        Self {
+            env,
+            algo,
+            seed: 1,
+            env_steps: 500_000,
+            actors: 1,
+            envs_per_actor: 16,
+            rollout_len: 128,
+            device: DeviceKind::Flex,
+            eval_episodes: 20,
+            out: PathBuf::new(),
+            one_process: true,
+            environment: EnvConfig::default(),
+            embedding,
+            ppo,
+        }
+    }
+
+    /// Defaults, then the file (if any). `env`/`algo` given on the command line pick the
+    /// defaults the file is laid over.
+    pub fn from_layers(
+        env: Option<EnvName>,
+        algo: Option<Algo>,
+        file: Option<&Path>,
+    ) -> Result<Self, ConfigError> {
+        let parsed: ConfigFile = match file {
+            None => ConfigFile::default(),
+            Some(path) => {
+                let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                    path: path.into(),
+                    source,
+                })?;
+                toml::from_str(&text).map_err(|e| ConfigError::Parse {
+                    path: path.into(),
+                    message: e.to_string(),
+                })?
+            }
+        };
+        let env = env.or(parsed.env).unwrap_or(EnvName::GridworldDiscrete);
+        let algo = algo.or(parsed.algo).unwrap_or(Algo::Jsae);
+        let mut c = Self::defaults(env, algo);
+        let path = file.unwrap_or(Path::new("<defaults>"));
+        c.seed = parsed.seed.unwrap_or(c.seed);
+        c.env_steps = parsed.env_steps.unwrap_or(c.env_steps);
+        c.actors = parsed.actors.unwrap_or(c.actors);
+        c.envs_per_actor = parsed.envs_per_actor.unwrap_or(c.envs_per_actor);
+        c.rollout_len = parsed.rollout_len.unwrap_or(c.rollout_len);
+        c.device = parsed.device.unwrap_or(c.device);
+        c.eval_episodes = parsed.eval_episodes.unwrap_or(c.eval_episodes);
+        c.out = parsed.out.unwrap_or(c.out);
+        c.one_process = parsed.one_process.unwrap_or(c.one_process);
+        c.environment = overlay(&c.environment, parsed.environment, path)?;
+        c.embedding = overlay(&c.embedding, parsed.embedding, path)?;
+        c.ppo = overlay(&c.ppo, parsed.ppo, path)?;
+        Ok(c)
+    }
+
+    /// Env steps per rollout round of all actors (the learner's batch).
+    pub fn round_steps(&self) -> usize {
+        self.actors * self.envs_per_actor * self.rollout_len
+    }
+
+    /// Checks everything; the reason names the bad setting.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |m: String| Err(ConfigError::Invalid(m));
+        if matches!(self.algo, Algo::Ae | Algo::Ra) {
+            return bad(format!(
+                "--algo {} is not available yet (available: jsae, ppo)",
+                self.algo.as_str()
+            ));
+        }
+        if self.actors == 0 || self.envs_per_actor == 0 || self.rollout_len == 0 {
+            return bad("actors, envs_per_actor and rollout_len must be positive".into());
+        }
+        if self.env_steps == 0 {
+            return bad("env_steps must be positive".into());
+        }
+        if self.eval_episodes == 0 {
+            return bad("eval_episodes must be positive".into());
+        }
+        if !self.one_process {
+            return bad("separate service processes are not available yet: use one_process".into());
+        }
+        validate_env_config(&self.environment).map_err(ConfigError::Invalid)?;
+        self.ppo.validate().map_err(ConfigError::Invalid)?;
+        if self.algo.uses_embedding() {
+            self.embedding.validate().map_err(ConfigError::Invalid)?;
+            if self.embedding.pretrain_transitions as u64 >= self.env_steps {
+                return bad(format!(
+                    "env_steps ({}) must exceed embedding.pretrain_transitions ({})",
+                    self.env_steps, self.embedding.pretrain_transitions
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// The configuration as TOML (what `config.toml` holds).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_else(|e| format!("# not serialisable: {e}\n"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_overrides_defaults_and_unknown_keys_are_refused() {
+        let dir = std::env::temp_dir().join(format!("jsae-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let file = dir.join("run.toml");
+        std::fs::write(&file, "seed = 7\n[ppo]\nepochs = 3\n[environment.gridworld]\nactuators = 4\n")
+            .expect("write");
+        let c = TrainConfig::from_layers(None, None, Some(&file)).expect("parses");
+        assert_eq!((c.seed, c.ppo.epochs, c.environment.gridworld.actuators), (7, 3, 4));
+        assert_eq!(c.ppo.lr, PpoConfig::default().lr);
+        // the saved config reads back as the same configuration
+        let saved = dir.join("saved.toml");
+        std::fs::write(&saved, c.to_toml()).expect("write");
+        let back = TrainConfig::from_layers(None, None, Some(&saved)).expect("round trip");
+        assert_eq!(back, c);
+        std::fs::write(&file, "[ppo]\nepochz = 3\n").expect("write");
+        let err = TrainConfig::from_layers(None, None, Some(&file)).expect_err("typo refused");
+        assert!(err.to_string().contains("epochz"), "{err}");
+    }
+
+    #[test]
+    fn bad_values_are_refused_with_a_reason() {
+        let mut c = TrainConfig::defaults(EnvName::Gridworld, Algo::Jsae);
+        c.env_steps = 1000;
+        assert!(c.validate().expect_err("too short").to_string().contains("pretrain"));
+        let c = TrainConfig::defaults(EnvName::Gridworld, Algo::Ra);
+        assert!(c.validate().is_err());
+    }
+}

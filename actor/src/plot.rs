@@ -1,0 +1,180 @@
+//! SVG plots of a run: the learning curve (return and success rate against env steps) and,
+//! for the gridworld, the learned action embeddings coloured by the displacement each
+//! action causes (the paper's Figure 2d).
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use jsae_embedder::Embedding;
+
+use crate::config::TrainConfig;
+use crate::envs::{gridworld::action_motions, EnvName};
+
+const W: f64 = 640.0;
+const H: f64 = 400.0;
+const PAD: f64 = 50.0;
+
+struct Frame {
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl Frame {
+    fn fit(xs: impl Iterator<Item = f64> + Clone, ys: impl Iterator<Item = f64> + Clone) -> Self {
+        let lo_hi = |v: &mut dyn Iterator<Item = f64>| {
+            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)))
+        };
+        let (x0, x1) = lo_hi(&mut xs.clone());
+        let (y0, y1) = lo_hi(&mut ys.clone());
+        let widen = |a: f64, b: f64| if (b - a).abs() < 1e-12 { (a - 0.5, b + 0.5) } else { (a, b) };
+        let (x0, x1) = widen(x0, x1);
+        let (y0, y1) = widen(y0, y1);
+        Self { x0, x1, y0, y1 }
+    }
+
+    fn px(&self, x: f64) -> f64 {
+        PAD + (x - self.x0) / (self.x1 - self.x0) * (W - 2.0 * PAD)
+    }
+
+    fn py(&self, y: f64) -> f64 {
+        H - PAD - (y - self.y0) / (self.y1 - self.y0) * (H - 2.0 * PAD)
+    }
+
+    fn axes(&self, svg: &mut String, title: &str, xlabel: &str, ylabel: &str) {
+        let _ = write!(
+            svg,
+            r#"<rect x="{PAD}" y="{PAD}" width="{}" height="{}" fill="none" stroke="black"/>"#,
+            W - 2.0 * PAD,
+            H - 2.0 * PAD
+        );
+        let _ = write!(svg, r#"<text x="{}" y="25" text-anchor="middle" font-size="16">{title}</text>"#, W / 2.0);
+        let _ = write!(svg, r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">{xlabel}</text>"#, W / 2.0, H - 12.0);
+        let _ = write!(
+            svg,
+            r#"<text x="14" y="{}" text-anchor="middle" font-size="12" transform="rotate(-90 14 {})">{ylabel}</text>"#,
+            H / 2.0,
+            H / 2.0
+        );
+        for (v, anchor, x, y) in [
+            (self.x0, "start", PAD, H - PAD + 15.0),
+            (self.x1, "end", W - PAD, H - PAD + 15.0),
+            (self.y0, "end", PAD - 4.0, H - PAD),
+            (self.y1, "end", PAD - 4.0, PAD + 10.0),
+        ] {
+            let _ = write!(svg, r#"<text x="{x}" y="{y}" text-anchor="{anchor}" font-size="11">{}</text>"#, fmt_num(v));
+        }
+    }
+}
+
+fn fmt_num(v: f64) -> String {
+    if v.abs() >= 1000.0 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
+fn svg_open() -> String {
+    format!(
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}"><rect width="100%" height="100%" fill="white"/>"#
+    )
+}
+
+/// Reads `(env_steps, column)` pairs of `metrics.csv`, skipping empty cells.
+fn read_series(csv: &str, column: &str) -> Vec<(f64, f64)> {
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let (Some(xi), Some(yi)) = (
+        header.iter().position(|h| *h == "env_steps"),
+        header.iter().position(|h| *h == column),
+    ) else {
+        return Vec::new();
+    };
+    lines
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            Some((cells.get(xi)?.parse().ok()?, cells.get(yi)?.parse().ok()?))
+        })
+        .collect()
+}
+
+fn polyline(svg: &mut String, frame: &Frame, pts: &[(f64, f64)], colour: &str) {
+    let path: Vec<String> = pts
+        .iter()
+        .map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y)))
+        .collect();
+    let _ = write!(svg, r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#, path.join(" "));
+}
+
+/// The learning curve of a run directory's `metrics.csv`.
+pub fn learning_curve(metrics_csv: &str, title: &str) -> String {
+    let ret = read_series(metrics_csv, "return_mean");
+    let success = read_series(metrics_csv, "success_rate");
+    let mut svg = svg_open();
+    let frame = Frame::fit(
+        ret.iter().map(|p| p.0).chain(std::iter::once(0.0)),
+        ret.iter().chain(&success).map(|p| p.1),
+    );
+    frame.axes(&mut svg, title, "env steps", "training episode return (blue), success rate (green)");
+    polyline(&mut svg, &frame, &ret, "#1f77b4");
+    polyline(&mut svg, &frame, &success, "#2ca02c");
+    svg.push_str("</svg>\n");
+    svg
+}
+
+/// Scatter of 2-D points with one colour each.
+pub fn scatter(points: &[(f64, f64)], colours: &[(f64, f64, f64)], title: &str, xl: &str, yl: &str) -> String {
+    let mut svg = svg_open();
+    let frame = Frame::fit(points.iter().map(|p| p.0), points.iter().map(|p| p.1));
+    frame.axes(&mut svg, title, xl, yl);
+    for (p, c) in points.iter().zip(colours) {
+        let to = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+        let _ = write!(
+            svg,
+            r##"<circle cx="{:.1}" cy="{:.1}" r="3" fill="#{:02x}{:02x}{:02x}"/>"##,
+            frame.px(p.0),
+            frame.py(p.1),
+            to(c.0),
+            to(c.1),
+            to(c.2)
+        );
+    }
+    svg.push_str("</svg>\n");
+    svg
+}
+
+/// Writes the plots of a finished run into its directory; returns their paths.
+pub fn write_run_plots(dir: &Path, config: &TrainConfig, embedding: Option<&Embedding>) -> std::io::Result<Vec<PathBuf>> {
+    let mut written = Vec::new();
+    let csv = std::fs::read_to_string(dir.join("metrics.csv"))?;
+    let title = format!("{} / {} / seed {}", config.env.as_str(), config.algo.as_str(), config.seed);
+    let path = dir.join("learning_curve.svg");
+    std::fs::write(&path, learning_curve(&csv, &title))?;
+    written.push(path);
+    let gridworld = matches!(config.env, EnvName::Gridworld | EnvName::GridworldDiscrete);
+    if let (true, Some(e)) = (gridworld, embedding) {
+        if let Some(table) = e.action_table() {
+            let d = e.action_dim();
+            if d >= 2 {
+                let motions = action_motions(config.environment.gridworld.actuators);
+                let points: Vec<(f64, f64)> = table
+                    .chunks_exact(d)
+                    .map(|r| (f64::from(r[0]), f64::from(r[1])))
+                    .collect();
+                let colours: Vec<(f64, f64, f64)> = motions
+                    .iter()
+                    .map(|m| ((m[0] + 1.0) / 2.0, (m[1] + 1.0) / 2.0, 0.5))
+                    .collect();
+                let path = dir.join("action_embeddings.svg");
+                std::fs::write(
+                    &path,
+                    scatter(&points, &colours, "action embeddings g(a), coloured by displacement", "e1", "e2"),
+                )?;
+                written.push(path);
+            }
+        }
+    }
+    Ok(written)
+}

@@ -1,0 +1,70 @@
+//! Training progress for people: an indicatif bar on a terminal, plain log lines otherwise.
+
+use std::io::IsTerminal;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use jsae_learner::UpdateMetrics;
+
+/// Reports progress of a run.
+#[derive(Debug)]
+pub struct Progress {
+    bar: Option<ProgressBar>,
+    total: u64,
+    last_logged: u64,
+}
+
+impl Progress {
+    /// A bar on a terminal (stderr), log lines otherwise; `quiet` shows nothing.
+    pub fn new(total_env_steps: u64, quiet: bool) -> Self {
+        let bar = (!quiet && std::io::stderr().is_terminal()).then(|| {
+            let bar = ProgressBar::new(total_env_steps);
+            let style = ProgressStyle::with_template(
+                "{spinner} [{elapsed_precise}] {bar:30} {pos}/{len} steps ({per_sec}) {msg}",
+            )
+            .unwrap_or_else(|_| ProgressStyle::default_bar());
+            bar.set_style(style);
+            bar
+        });
+        Self {
+            bar,
+            total: if quiet { 0 } else { total_env_steps },
+            last_logged: 0,
+        }
+    }
+
+    /// A learner update finished.
+    pub fn update(&mut self, m: &UpdateMetrics) {
+        let ret = m.return_mean.map_or("-".into(), |r| format!("{r:.3}"));
+        let success = m.success_rate.map_or(String::new(), |s| format!(" success {s:.2}"));
+        if let Some(bar) = &self.bar {
+            bar.set_position(m.env_steps.min(self.total));
+            bar.set_message(format!("return {ret}{success}"));
+        } else if self.total > 0 && (m.env_steps - self.last_logged >= self.total / 20 || m.update == 1) {
+            self.last_logged = m.env_steps;
+            tracing::info!(
+                "update {} env_steps {}/{} return {ret}{success} kl {:.4} clip {:.3}",
+                m.update,
+                m.env_steps,
+                self.total,
+                m.approx_kl,
+                m.clip_frac
+            );
+        }
+    }
+
+    /// A message (pre-training done, evaluation started).
+    pub fn note(&self, message: &str) {
+        match &self.bar {
+            Some(bar) => bar.println(message),
+            None if self.total > 0 => tracing::info!("{message}"),
+            None => {}
+        }
+    }
+
+    /// The run finished.
+    pub fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+    }
+}

@@ -1,0 +1,155 @@
+//! One-process training: the actor workers, the embedder trainer and the learner each own
+//! their state and exchange only messages (transition batches, rollout fragments, weight
+//! snapshots, an evaluation report), here handed over in lockstep on one thread, so a seed
+//! gives the same run twice.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use jsae_embedder::EmbedderTrainer;
+use jsae_learner::{Ingested, Learner, MetricsWriter, RunMeta, Summary};
+use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+
+use crate::config::TrainConfig;
+use crate::plot;
+use crate::progress::Progress;
+use crate::worker::{policy_shape, ActorWorker, WorkerError};
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Invalid configuration.
+    #[error(transparent)]
+    Config(#[from] crate::config::ConfigError),
+    /// The run directory could not be written.
+    #[error("run directory {path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A component refused a message.
+    #[error("learner: {0}")]
+    Learner(#[from] jsae_learner::LearnerError),
+    /// An embedding or policy snapshot could not be applied.
+    #[error("actor: {0}")]
+    Worker(#[from] WorkerError),
+    /// The embedder refused a transition batch.
+    #[error("embedder: {0}")]
+    Embedder(String),
+}
+
+fn io(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// What a finished run left behind.
+#[derive(Debug, Clone)]
+pub struct RunOutcome {
+    /// The summary (also in `summary.json`).
+    pub summary: Summary,
+    /// The run directory.
+    pub dir: PathBuf,
+    /// Plots written.
+    pub plots: Vec<PathBuf>,
+}
+
+/// Trains in this process and writes the run directory.
+pub fn train_one_process(config: &TrainConfig, progress: &mut Progress) -> Result<RunOutcome, TrainError> {
+    config.validate()?;
+    let started = Instant::now();
+    let dir = config.out.clone();
+    std::fs::create_dir_all(dir.join("checkpoints")).map_err(io(&dir))?;
+    std::fs::write(dir.join("config.toml"), config.to_toml()).map_err(io(&dir))?;
+    let mut metrics = MetricsWriter::create(&dir).map_err(io(&dir))?;
+
+    let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
+        .map(|id| ActorWorker::new(config, id, config.device))
+        .collect();
+    let (states, actions) = (actors[0].state_space().clone(), actors[0].action_space().clone());
+    let (input, head) = policy_shape(config, &states, &actions);
+    let mut ppo = config.ppo.clone();
+    ppo.batch_steps = config.round_steps();
+    let mut learner = Learner::new(ppo, input, head, config.env_steps, config.seed, config.device);
+    let mut embedder = config.algo.uses_embedding().then(|| {
+        EmbedderTrainer::new(config.embedding.clone(), &states, &actions, config.seed, config.device)
+    });
+
+    let first = learner.snapshot().map_err(jsae_learner::LearnerError::from)?;
+    for a in &mut actors {
+        a.set_policy(&first)?;
+    }
+    let mut last_embedding: Option<EmbeddingSnapshot> = None;
+    let mut last_policy: PolicySnapshot = first;
+    let total = |actors: &[ActorWorker]| actors.iter().map(ActorWorker::env_steps).sum::<u64>();
+    while total(&actors) < config.env_steps {
+        for i in 0..actors.len() {
+            let rollout = actors[i].collect(config.rollout_len);
+            if let Some(emb) = embedder.as_mut() {
+                emb.ingest(&rollout.transitions)
+                    .map_err(|e| TrainError::Embedder(e.to_string()))?;
+                if let Some(snap) = emb.poll().map_err(|e| TrainError::Embedder(e.to_string()))? {
+                    if snap.version == 1 {
+                        progress.note(&format!(
+                            "embedding pre-trained on {} random transitions (model loss {:.4})",
+                            emb.replay_len(),
+                            snap.model_loss
+                        ));
+                    }
+                    for a in &mut actors {
+                        a.set_embedding(&snap)?;
+                    }
+                    last_embedding = Some(snap);
+                }
+            }
+            learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
+            for fragment in rollout.fragments {
+                if let Ingested::Updated(report) = learner.ingest(fragment)? {
+                    let loss = last_embedding.as_ref().map(|s| s.model_loss);
+                    metrics
+                        .write(&report.metrics, started.elapsed().as_secs_f64(), loss)
+                        .map_err(io(metrics.path()))?;
+                    progress.update(&report.metrics);
+                    for a in &mut actors {
+                        a.set_policy(&report.snapshot)?;
+                    }
+                    last_policy = report.snapshot;
+                }
+            }
+        }
+    }
+
+    progress.note("evaluating the deterministic policy");
+    let eval = actors[0].evaluate(config.eval_episodes, config.seed ^ 0xE7A1);
+    let wall = started.elapsed().as_secs_f64();
+    let meta = RunMeta {
+        env: config.env.as_str().into(),
+        algo: config.algo.as_str().into(),
+        seed: config.seed,
+        device: config.device.as_str().into(),
+    };
+    let summary = Summary::new(
+        &meta,
+        total(&actors),
+        wall,
+        &eval,
+        learner.updates(),
+        learner.lag(),
+        learner.dropped(),
+        learner.version(),
+    );
+    let ckpt = dir.join("checkpoints");
+    std::fs::write(ckpt.join(format!("policy-v{}.bpk", last_policy.version)), &last_policy.bytes)
+        .map_err(io(&ckpt))?;
+    if let Some(e) = &last_embedding {
+        std::fs::write(ckpt.join(format!("embedding-v{}.bpk", e.version)), &e.bytes).map_err(io(&ckpt))?;
+    }
+    summary.write(&dir).map_err(io(&dir))?;
+    let plots = plot::write_run_plots(&dir, config, actors[0].embedding()).map_err(io(&dir))?;
+    progress.finish();
+    Ok(RunOutcome { summary, dir, plots })
+}

@@ -1,0 +1,424 @@
+//! The actor's rollout worker: steps a vector of environments with one batched
+//! `phi -> pi_i -> f` inference per step across them, and produces raw transitions for the
+//! embedder and embedded rollout fragments for the learner. Weights are swapped in whole
+//! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
+
+use jsae_embedder::nn::DeviceKind;
+use jsae_embedder::Embedding;
+use jsae_learner::{Policy, PolicyHead};
+use jsae_proto::{
+    ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
+    RolloutFragment, StateBatch, StateSpace, TransitionBatch,
+};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use crate::config::{Algo, TrainConfig};
+use crate::envs::{make_env, ActionRef, Env};
+
+/// Why a snapshot could not be applied.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    /// The bytes do not fit the model.
+    #[error("snapshot version {version}: {source}")]
+    Snapshot {
+        /// The snapshot's version.
+        version: u64,
+        /// The cause.
+        source: jsae_embedder::nn::RecordError,
+    },
+}
+
+/// What one rollout produced.
+#[derive(Debug, Clone)]
+pub struct Rollout {
+    /// Raw transitions (for the embedder; empty without embeddings).
+    pub transitions: TransitionBatch,
+    /// One fragment per environment (empty while acting at random).
+    pub fragments: Vec<RolloutFragment>,
+}
+
+/// The policy input width and head for a run.
+pub fn policy_shape(config: &TrainConfig, states: &StateSpace, actions: &ActionSpace) -> (usize, PolicyHead) {
+    match config.algo {
+        Algo::Jsae | Algo::Ae | Algo::Ra => (
+            config.embedding.state_dim,
+            PolicyHead::Gaussian {
+                dim: config.embedding.action_dim,
+            },
+        ),
+        Algo::Ppo => (
+            states.feature_len(),
+            match actions {
+                ActionSpace::Discrete { n } => PolicyHead::Categorical { n: *n },
+                ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
+            },
+        ),
+    }
+}
+
+/// Per-environment episode bookkeeping.
+#[derive(Debug, Clone, Copy, Default)]
+struct Running {
+    ret: f64,
+    len: u32,
+}
+
+/// One actor: its environments, its copies of the weights, its randomness.
+pub struct ActorWorker {
+    id: u64,
+    config: TrainConfig,
+    envs: Vec<Box<dyn Env>>,
+    env_rngs: Vec<ChaCha8Rng>,
+    rng: ChaCha8Rng,
+    states: StateSpace,
+    actions: ActionSpace,
+    policy: Policy,
+    policy_version: Option<u64>,
+    embedding: Option<Embedding>,
+    running: Vec<Running>,
+    current: StateBatch,
+    env_steps: u64,
+    device: burn::tensor::Device,
+}
+
+impl std::fmt::Debug for ActorWorker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("ActorWorker")
+            .field("id", &self.id)
+            .field("envs", &self.envs.len())
+            .field("policy_version", &self.policy_version)
+            .field("embedding_version", &self.embedding_version())
+            .field("env_steps", &self.env_steps)
+            .finish()
+    }
+}
+
+fn actor_seed(seed: u64, id: u64, stream: u64) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ id.wrapping_mul(0xBF58_476D_1CE4_E5B9) ^ stream
+}
+
+impl ActorWorker {
+    /// An actor with `config.envs_per_actor` environments, all reset.
+    pub fn new(config: &TrainConfig, id: u64, device: DeviceKind) -> Self {
+        let mut envs: Vec<Box<dyn Env>> = (0..config.envs_per_actor)
+            .map(|_| make_env(config.env, &config.environment))
+            .collect();
+        let mut env_rngs: Vec<ChaCha8Rng> = (0..envs.len())
+            .map(|k| ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1000 + k as u64)))
+            .collect();
+        let states = envs[0].state_space().clone();
+        let actions = envs[0].action_space().clone();
+        let mut current = StateBatch::empty(&states);
+        for (env, rng) in envs.iter_mut().zip(&mut env_rngs) {
+            env.reset(rng);
+            env.push_state(&mut current);
+        }
+        let (input, head) = policy_shape(config, &states, &actions);
+        let device = device.device();
+        let mut init_rng = ChaCha8Rng::seed_from_u64(0);
+        let policy = Policy::new(&config.ppo, input, head, &mut init_rng, &device);
+        Self {
+            id,
+            config: config.clone(),
+            running: vec![Running::default(); envs.len()],
+            envs,
+            env_rngs,
+            rng: ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1)),
+            states,
+            actions,
+            policy,
+            policy_version: None,
+            embedding: None,
+            current,
+            env_steps: 0,
+            device,
+        }
+    }
+
+    /// The actor's id.
+    pub fn id(&self) -> u64 {
+        self.id
+    }
+
+    /// Env steps taken by this actor.
+    pub fn env_steps(&self) -> u64 {
+        self.env_steps
+    }
+
+    /// The environments' state space.
+    pub fn state_space(&self) -> &StateSpace {
+        &self.states
+    }
+
+    /// The environments' action space.
+    pub fn action_space(&self) -> &ActionSpace {
+        &self.actions
+    }
+
+    /// Version of the embedding in use (0: none yet).
+    pub fn embedding_version(&self) -> u64 {
+        self.embedding.as_ref().map_or(0, Embedding::version)
+    }
+
+    /// Version of the policy in use.
+    pub fn policy_version(&self) -> Option<u64> {
+        self.policy_version
+    }
+
+    /// The embedding in use.
+    pub fn embedding(&self) -> Option<&Embedding> {
+        self.embedding.as_ref()
+    }
+
+    /// Swaps in a new embedding (ignored if not newer).
+    pub fn set_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), WorkerError> {
+        if snapshot.version <= self.embedding_version() {
+            return Ok(());
+        }
+        let embedding = Embedding::from_snapshot(
+            &self.config.embedding,
+            &self.states,
+            &self.actions,
+            snapshot,
+            &self.device,
+        )
+        .map_err(|source| WorkerError::Snapshot {
+            version: snapshot.version,
+            source,
+        })?;
+        self.embedding = Some(embedding);
+        Ok(())
+    }
+
+    /// Swaps in a new policy (ignored if not newer).
+    pub fn set_policy(&mut self, snapshot: &PolicySnapshot) -> Result<(), WorkerError> {
+        if self.policy_version.is_some_and(|v| snapshot.version <= v) {
+            return Ok(());
+        }
+        let mut policy = self.policy.clone();
+        policy
+            .load_bytes(&snapshot.bytes)
+            .map_err(|source| WorkerError::Snapshot {
+                version: snapshot.version,
+                source,
+            })?;
+        self.policy = policy;
+        self.policy_version = Some(snapshot.version);
+        Ok(())
+    }
+
+    /// Whether actions come from the policy (else uniformly at random).
+    fn acting(&self) -> bool {
+        self.policy_version.is_some() && (!self.config.algo.uses_embedding() || self.embedding.is_some())
+    }
+
+    /// Policy inputs of `states`, `[len, x_dim]`.
+    fn policy_inputs(&self, states: &StateBatch, out: &mut Vec<f32>) {
+        match &self.embedding {
+            Some(e) if self.config.algo.uses_embedding() => e.embed_states(states, out),
+            _ => states.write_features(&self.states, out),
+        }
+    }
+
+    fn random_actions(&mut self, n: usize, out: &mut ActionBatch) {
+        match (&self.actions, out) {
+            (ActionSpace::Discrete { n: count }, ActionBatch::Discrete(v)) => {
+                v.extend((0..n).map(|_| self.rng.random_range(0..*count as u32)))
+            }
+            (ActionSpace::Continuous { low, high, .. }, ActionBatch::Continuous { data, .. }) => {
+                for _ in 0..n {
+                    for (l, h) in low.iter().zip(high) {
+                        data.push(self.rng.random_range(*l..=*h));
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    /// Maps sampled policy actions to environment actions.
+    fn env_actions(&mut self, policy_actions: &ActionBatch, out: &mut ActionBatch) {
+        match (&mut self.embedding, policy_actions) {
+            (Some(e), ActionBatch::Continuous { data, .. }) if self.config.algo.uses_embedding() => {
+                e.decode(data, out)
+            }
+            _ => out.extend_from(policy_actions),
+        }
+    }
+
+    /// Steps every environment `steps` times.
+    pub fn collect(&mut self, steps: usize) -> Rollout {
+        let k = self.envs.len();
+        let acting = self.acting();
+        let record_transitions = self.config.algo.uses_embedding();
+        let x_dim = self.policy.input_dim();
+        let mut transitions = TransitionBatch {
+            actor_id: self.id,
+            states: StateBatch::empty(&self.states),
+            actions: ActionBatch::empty(&self.actions),
+            rewards: Vec::new(),
+            next_states: StateBatch::empty(&self.states),
+            terminated: Vec::new(),
+        };
+        let head_space = self.policy.head().action_space();
+        let mut fragments: Vec<RolloutFragment> = (0..k)
+            .map(|i| RolloutFragment {
+                actor_id: self.id,
+                env_index: i as u32,
+                policy_version: self.policy_version.unwrap_or(0),
+                embedding_version: self.embedding_version(),
+                actor_env_steps: 0,
+                x_dim,
+                x: Vec::with_capacity(steps * x_dim),
+                actions: ActionBatch::empty(&head_space),
+                logp: Vec::with_capacity(steps),
+                rewards: Vec::with_capacity(steps),
+                terminated: Vec::with_capacity(steps),
+                truncated: Vec::with_capacity(steps),
+                truncated_next_x: Vec::new(),
+                last_next_x: Vec::new(),
+                episodes: Vec::new(),
+            })
+            .collect();
+        let mut x = Vec::new();
+        let mut policy_actions = ActionBatch::empty(&head_space);
+        let mut logp = Vec::with_capacity(k);
+        let mut env_actions = ActionBatch::empty(&self.actions);
+        let mut next = StateBatch::empty(&self.states);
+        let mut cut_states = StateBatch::empty(&self.states);
+        let mut cut_x = Vec::new();
+        let mut cut_envs = Vec::new();
+        let mut after = StateBatch::empty(&self.states);
+        for _ in 0..steps {
+            policy_actions.clear();
+            env_actions.clear();
+            logp.clear();
+            if acting {
+                self.policy_inputs(&self.current, &mut x);
+                self.policy.act(&x, false, &mut self.rng, &mut policy_actions, &mut logp);
+                self.env_actions(&policy_actions, &mut env_actions);
+            } else {
+                self.random_actions(k, &mut env_actions);
+            }
+            next.clear();
+            cut_states.clear();
+            cut_envs.clear();
+            after.clear();
+            for i in 0..k {
+                let step = match &env_actions {
+                    ActionBatch::Discrete(a) => self.envs[i].step(ActionRef::Discrete(a[i])),
+                    ActionBatch::Continuous { dim, data } => {
+                        self.envs[i].step(ActionRef::Continuous(&data[i * dim..(i + 1) * dim]))
+                    }
+                };
+                self.envs[i].push_state(&mut next);
+                let run = &mut self.running[i];
+                run.ret += step.reward;
+                run.len += 1;
+                let ended = step.terminated || step.truncated;
+                let mut finished = None;
+                if ended {
+                    finished = Some(EpisodeStat {
+                        ret: run.ret,
+                        length: run.len,
+                        success: self.envs[i].has_success().then_some(step.success),
+                    });
+                    *run = Running::default();
+                    if step.truncated {
+                        cut_states.push_row_of(&next, i);
+                        cut_envs.push(i);
+                    }
+                    self.envs[i].reset(&mut self.env_rngs[i]);
+                }
+                self.envs[i].push_state(&mut after);
+                if record_transitions {
+                    transitions.states.push_row_of(&self.current, i);
+                    transitions.actions.push_row_of(&env_actions, i);
+                    transitions.rewards.push(step.reward as f32);
+                    transitions.next_states.push_row_of(&next, i);
+                    transitions.terminated.push(step.terminated);
+                }
+                let f = &mut fragments[i];
+                if let Some(ep) = finished {
+                    f.episodes.push(ep);
+                }
+                if acting {
+                    f.x.extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
+                    f.actions.push_row_of(&policy_actions, i);
+                    f.logp.push(logp[i]);
+                    f.rewards.push(step.reward as f32);
+                    f.terminated.push(step.terminated);
+                    f.truncated.push(step.truncated);
+                }
+            }
+            if acting && !cut_envs.is_empty() {
+                self.policy_inputs(&cut_states, &mut cut_x);
+                for (j, &i) in cut_envs.iter().enumerate() {
+                    fragments[i]
+                        .truncated_next_x
+                        .extend_from_slice(&cut_x[j * x_dim..(j + 1) * x_dim]);
+                }
+            }
+            std::mem::swap(&mut self.current, &mut after);
+            self.env_steps += k as u64;
+        }
+        if acting {
+            self.policy_inputs(&self.current, &mut x);
+            for (i, f) in fragments.iter_mut().enumerate() {
+                f.last_next_x.extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
+                f.actor_env_steps = self.env_steps;
+            }
+        } else {
+            fragments.clear();
+        }
+        Rollout {
+            transitions,
+            fragments,
+        }
+    }
+
+    /// Runs `episodes` evaluation episodes with the deterministic policy (mean action, then
+    /// f) on fresh environments seeded with `seed`.
+    pub fn evaluate(&mut self, episodes: usize, seed: u64) -> EvalReport {
+        let mut env = make_env(self.config.env, &self.config.environment);
+        let mut env_rng = ChaCha8Rng::seed_from_u64(seed);
+        let head_space = self.policy.head().action_space();
+        let mut report = EvalReport {
+            policy_version: self.policy_version.unwrap_or(0),
+            embedding_version: self.embedding_version(),
+            episodes: Vec::with_capacity(episodes),
+        };
+        let (mut state, mut x, mut logp) = (StateBatch::empty(&self.states), Vec::new(), Vec::new());
+        let mut policy_action = ActionBatch::empty(&head_space);
+        let mut env_action = ActionBatch::empty(&self.actions);
+        for _ in 0..episodes {
+            env.reset(&mut env_rng);
+            let mut run = Running::default();
+            loop {
+                state.clear();
+                env.push_state(&mut state);
+                policy_action.clear();
+                env_action.clear();
+                self.policy_inputs(&state, &mut x);
+                self.policy.act(&x, true, &mut self.rng, &mut policy_action, &mut logp);
+                self.env_actions(&policy_action, &mut env_action);
+                let step = match &env_action {
+                    ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[0])),
+                    ActionBatch::Continuous { data, .. } => env.step(ActionRef::Continuous(data)),
+                };
+                run.ret += step.reward;
+                run.len += 1;
+                if step.terminated || step.truncated {
+                    report.episodes.push(EpisodeStat {
+                        ret: run.ret,
+                        length: run.len,
+                        success: env.has_success().then_some(step.success),
+                    });
+                    break;
+                }
+            }
+        }
+        report
+    }
+}

@@ -1,0 +1,27 @@
+//! The JSAE embedding model and its trainer.
+//!
+//! phi maps states to `X = R^m`, g maps actions to `E = R^d`, T predicts the next state from
+//! `concat(phi(s), g(a))`, and f maps `E` back to actions (exact nearest neighbour over the
+//! g-table for discrete actions, an MLP for continuous ones). phi, g and T minimise
+//! `-log P(s'|s,a)`; f is trained on detached `g(a)`. RL losses never touch this model.
+//!
+//! Layout: `config` (settings), `model` (the networks and losses), `nearest` (f for discrete
+//! actions), `replay` (the bounded transition buffer), `trainer` (pre-training, continuous
+//! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `nn` (burn
+//! building blocks the learner shares).
+
+#![forbid(unsafe_code)]
+
+mod config;
+mod embedding;
+mod model;
+mod nearest;
+pub mod nn;
+pub mod replay;
+mod trainer;
+
+pub use config::EmbeddingConfig;
+pub use embedding::Embedding;
+pub use model::{EmbeddingModel, EmbeddingNet};
+pub use nearest::NearestAction;
+pub use trainer::{EmbedderStats, EmbedderTrainer};

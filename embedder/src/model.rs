@@ -1,0 +1,314 @@
+//! The embedding model: phi (states -> X), g (actions -> E), T (X x E -> S) and, for
+//! continuous actions, the decoder f (E -> A).
+//!
+//! As in the public reference code: phi and g are one linear layer without bias followed by
+//! tanh (for categorical inputs a table: a linear layer on one-hots), T is one linear layer.
+//! For factored categorical states phi sums one table row per factor (a linear layer on the
+//! concatenated one-hots) and T predicts one categorical per factor.
+
+use burn::module::{Module, Param};
+use burn::nn::Linear;
+use burn::tensor::activation::log_softmax;
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::nn::{self, Mlp, MlpConfig};
+use crate::EmbeddingConfig;
+
+/// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
+#[derive(Module, Debug)]
+pub struct EmbeddingNet {
+    /// phi for categorical states: `[sum of factor sizes, m]`.
+    phi_table: Option<Param<Tensor<2>>>,
+    /// phi for real states: `[dim -> m]`, no bias.
+    phi_linear: Option<Linear>,
+    /// g for discrete actions: `[n, d]`.
+    g_table: Option<Param<Tensor<2>>>,
+    /// g for continuous actions: `[dim -> d]`, no bias.
+    g_linear: Option<Linear>,
+    /// T: `[m + d -> logits over next states | next state]`.
+    transition: Linear,
+    /// f for continuous actions: `E -> A`, one hidden layer.
+    decoder: Option<Mlp>,
+}
+
+/// The embedding model of one environment: the network and the spaces it was built for.
+#[derive(Debug, Clone)]
+pub struct EmbeddingModel {
+    net: EmbeddingNet,
+    states: StateSpace,
+    actions: ActionSpace,
+    offsets: Vec<u32>,
+    config: EmbeddingConfig,
+    device: Device,
+}
+
+fn uniform_table(rows: usize, cols: usize, rng: &mut ChaCha8Rng, device: &Device) -> Param<Tensor<2>> {
+    // a linear layer on one-hots of width `rows`: U(-1/sqrt(rows), 1/sqrt(rows))
+    let k = 1.0 / (rows as f32).sqrt();
+    let values: Vec<f32> = (0..rows * cols).map(|_| rng.random_range(-k..k)).collect();
+    Param::from_tensor(nn::tensor2(values, rows, cols, device))
+}
+
+fn uniform_linear(d_in: usize, d_out: usize, bias: bool, rng: &mut ChaCha8Rng, device: &Device) -> Linear {
+    let k = 1.0 / (d_in as f32).sqrt();
+    let w: Vec<f32> = (0..d_in * d_out).map(|_| rng.random_range(-k..k)).collect();
+    let b = bias.then(|| (0..d_out).map(|_| rng.random_range(-k..k)).collect());
+    nn::linear_from_host(w, b, d_in, d_out, device)
+}
+
+impl EmbeddingModel {
+    /// A freshly initialised model for the given spaces.
+    pub fn new(
+        config: &EmbeddingConfig,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
+        let (m, d) = (config.state_dim, config.action_dim);
+        let (phi_table, phi_linear) = match states {
+            StateSpace::Categorical { sizes } => {
+                (Some(uniform_table(sizes.iter().sum(), m, rng, device)), None)
+            }
+            StateSpace::Real { dim } => (None, Some(uniform_linear(*dim, m, false, rng, device))),
+        };
+        let (g_table, g_linear, decoder) = match actions {
+            ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
+            ActionSpace::Continuous { dim, .. } => {
+                let decoder = MlpConfig {
+                    input: d,
+                    hidden: vec![config.decoder_hidden],
+                    output: *dim,
+                    output_gain: 1.0,
+                };
+                (
+                    None,
+                    Some(uniform_linear(*dim, d, false, rng, device)),
+                    Some(decoder.init(rng, device)),
+                )
+            }
+        };
+        let transition = uniform_linear(m + d, states.feature_len(), true, rng, device);
+        let offsets = match states {
+            StateSpace::Categorical { sizes } => sizes
+                .iter()
+                .scan(0u32, |acc, &s| {
+                    let o = *acc;
+                    *acc += s as u32;
+                    Some(o)
+                })
+                .collect(),
+            StateSpace::Real { .. } => Vec::new(),
+        };
+        Self {
+            net: EmbeddingNet {
+                phi_table,
+                phi_linear,
+                g_table,
+                g_linear,
+                transition,
+                decoder,
+            },
+            states: states.clone(),
+            actions: actions.clone(),
+            offsets,
+            config: config.clone(),
+            device: device.clone(),
+        }
+    }
+
+    /// The settings it was built with.
+    pub fn config(&self) -> &EmbeddingConfig {
+        &self.config
+    }
+
+    /// The state space.
+    pub fn state_space(&self) -> &StateSpace {
+        &self.states
+    }
+
+    /// The action space.
+    pub fn action_space(&self) -> &ActionSpace {
+        &self.actions
+    }
+
+    /// The device its tensors live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// The network (for the optimiser).
+    pub fn net(&self) -> &EmbeddingNet {
+        &self.net
+    }
+
+    /// Replaces the network (after an optimiser step).
+    pub fn set_net(&mut self, net: EmbeddingNet) {
+        self.net = net;
+    }
+
+    /// A copy for inference on `device` (no autodiff).
+    pub fn for_inference(&self, device: &Device) -> Self {
+        Self {
+            net: self.net.valid().to_device(device),
+            device: device.clone(),
+            ..self.clone()
+        }
+    }
+
+    /// The weights as bytes (what a snapshot carries).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, nn::RecordError> {
+        nn::into_bytes(&self.net)
+    }
+
+    /// Loads weights from snapshot bytes (structure checked).
+    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), nn::RecordError> {
+        self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        Ok(())
+    }
+
+    fn state_tensor(&self, states: &StateBatch) -> StateInput {
+        match states {
+            StateBatch::Categorical { factors, data } => {
+                let idx: Vec<i64> = data
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| i64::from(v + self.offsets[i % factors]))
+                    .collect();
+                let n = idx.len();
+                StateInput::Indices(
+                    Tensor::from_data(TensorData::new(idx, [n]), &self.device),
+                    *factors,
+                )
+            }
+            StateBatch::Real { dim, data } => {
+                StateInput::Values(nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device))
+            }
+        }
+    }
+
+    /// phi: `[batch] states -> [batch, m]`.
+    pub fn embed_states(&self, states: &StateBatch) -> Tensor<2> {
+        let input = self.state_tensor(states);
+        self.phi(input)
+    }
+
+    fn phi(&self, input: StateInput) -> Tensor<2> {
+        let pre = match (input, &self.net.phi_table, &self.net.phi_linear) {
+            (StateInput::Indices(idx, factors), Some(table), _) => {
+                let rows = table.val().select(0, idx); // [batch * factors, m]
+                let [n, m] = rows.dims();
+                if factors == 1 {
+                    rows
+                } else {
+                    rows.reshape([n / factors, factors, m]).sum_dim(1).reshape([n / factors, m])
+                }
+            }
+            (StateInput::Values(v), _, Some(linear)) => linear.forward(v),
+            _ => unreachable_state(),
+        };
+        pre.tanh()
+    }
+
+    /// g: `[batch] actions -> [batch, d]`.
+    pub fn embed_actions(&self, actions: &ActionBatch) -> Tensor<2> {
+        let pre = match (actions, &self.net.g_table, &self.net.g_linear) {
+            (ActionBatch::Discrete(a), Some(table), _) => {
+                let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
+                let n = idx.len();
+                table
+                    .val()
+                    .select(0, Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &self.device))
+            }
+            (ActionBatch::Continuous { dim, data }, _, Some(linear)) => {
+                linear.forward(nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device))
+            }
+            _ => unreachable_action(),
+        };
+        pre.tanh()
+    }
+
+    /// Every discrete action's embedding `g(a)`, `[n, d]` (None for continuous actions).
+    pub fn action_table(&self) -> Option<Tensor<2>> {
+        self.net.g_table.as_ref().map(|t| t.val().tanh())
+    }
+
+    /// T: next-state logits (categorical) or prediction (real), `[batch, feature_len]`.
+    pub fn predict_next(&self, x: Tensor<2>, e: Tensor<2>) -> Tensor<2> {
+        self.net.transition.forward(Tensor::cat(vec![x, e], 1))
+    }
+
+    /// f for continuous actions: `[batch, d] -> [batch, action dim]` (None for discrete).
+    pub fn decode(&self, e: Tensor<2>) -> Option<Tensor<2>> {
+        self.net.decoder.as_ref().map(|f| f.forward(e))
+    }
+
+    /// The losses on a minibatch: `-log P(s'|s,a)` (cross-entropy per factor, or MSE) for
+    /// phi, g and T, and f's reconstruction MSE on detached `g(a)` (zero for discrete
+    /// actions, whose f is a nearest-neighbour lookup).
+    pub fn losses(
+        &self,
+        states: &StateBatch,
+        actions: &ActionBatch,
+        next_states: &StateBatch,
+    ) -> (Tensor<1>, Tensor<1>) {
+        let x = self.embed_states(states);
+        let e = self.embed_actions(actions);
+        let out = self.predict_next(x, e.clone());
+        let model_loss = match (next_states, &self.states) {
+            (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) => {
+                let batch = data.len() / factors;
+                let mut total: Option<Tensor<1>> = None;
+                let mut start = 0;
+                for (f, &size) in sizes.iter().enumerate() {
+                    let logits = out.clone().slice([0..batch, start..start + size]);
+                    let logp = log_softmax(logits, 1);
+                    let target: Vec<i64> =
+                        (0..batch).map(|i| i64::from(data[i * factors + f])).collect();
+                    let target = Tensor::<2, Int>::from_data(
+                        TensorData::new(target, [batch, 1]),
+                        &self.device,
+                    );
+                    let nll = logp.gather(1, target).mean().neg();
+                    total = Some(match total {
+                        None => nll,
+                        Some(t) => t + nll,
+                    });
+                    start += size;
+                }
+                total.unwrap_or_else(|| Tensor::zeros([1], &self.device))
+            }
+            (StateBatch::Real { dim, data }, _) => {
+                let target = nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device);
+                (out - target).square().mean()
+            }
+            _ => unreachable_state(),
+        };
+        let decoder_loss = match (actions, self.decode(e.detach())) {
+            (ActionBatch::Continuous { dim, data }, Some(pred)) => {
+                let target = nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device);
+                (pred - target).square().mean()
+            }
+            _ => Tensor::zeros([1], &self.device),
+        };
+        (model_loss.reshape([1]), decoder_loss.reshape([1]))
+    }
+}
+
+enum StateInput {
+    Indices(Tensor<1, Int>, usize),
+    Values(Tensor<2>),
+}
+
+// The constructors pair each table with its input kind; batches are validated against the
+// same spaces before they reach the model, so a mismatch is a programming error.
+fn unreachable_state() -> ! {
+    panic!("state batch kind does not match the embedding model's state space")
+}
+
+fn unreachable_action() -> ! {
+    panic!("action batch kind does not match the embedding model's action space")
+}

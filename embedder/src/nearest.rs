@@ -1,0 +1,134 @@
+//! f for discrete actions: the exact nearest neighbour of an embedding among the rows `g(a)`.
+//!
+//! The table is stored column by column so the distance to every action is one pass of
+//! contiguous, auto-vectorised arithmetic per embedding dimension, into a scratch buffer
+//! allocated once: a lookup allocates nothing.
+
+/// Exact nearest-neighbour search over a fixed `[n, d]` table of action embeddings.
+#[derive(Debug, Clone)]
+pub struct NearestAction {
+    /// `columns[j][a]` = component `j` of `g(a)`.
+    columns: Vec<Vec<f32>>,
+    scratch: Vec<f32>,
+}
+
+impl NearestAction {
+    /// Builds the index from a row-major `[n, d]` table.
+    pub fn new(table: &[f32], d: usize) -> Self {
+        let n = if d == 0 { 0 } else { table.len() / d };
+        let columns = (0..d)
+            .map(|j| (0..n).map(|a| table[a * d + j]).collect())
+            .collect();
+        Self {
+            columns,
+            scratch: vec![0.0; n],
+        }
+    }
+
+    /// Number of actions.
+    pub fn len(&self) -> usize {
+        self.scratch.len()
+    }
+
+    /// Whether the table is empty.
+    pub fn is_empty(&self) -> bool {
+        self.scratch.is_empty()
+    }
+
+    /// Embedding width `d`.
+    pub fn dim(&self) -> usize {
+        self.columns.len()
+    }
+
+    /// Component `j` of every action's embedding.
+    pub fn column(&self, j: usize) -> &[f32] {
+        &self.columns[j]
+    }
+
+    /// The action whose embedding is closest (Euclidean) to `e` (`[d]`); ties go to the
+    /// lowest index.
+    pub fn nearest(&mut self, e: &[f32]) -> u32 {
+        let dist = &mut self.scratch;
+        dist.iter_mut().for_each(|v| *v = 0.0);
+        for (col, &ej) in self.columns.iter().zip(e) {
+            for (acc, &c) in dist.iter_mut().zip(col) {
+                let diff = c - ej;
+                *acc += diff * diff;
+            }
+        }
+        let mut best = (f32::INFINITY, 0u32);
+        for (a, &v) in dist.iter().enumerate() {
+            if v < best.0 {
+                best = (v, a as u32);
+            }
+        }
+        best.1
+    }
+
+    /// Nearest action of every row of `es` (`[batch, d]`), appended to `out`.
+    pub fn nearest_batch(&mut self, es: &[f32], out: &mut Vec<u32>) {
+        let d = self.dim().max(1);
+        for e in es.chunks_exact(d) {
+            let a = self.nearest(e);
+            out.push(a);
+        }
+    }
+
+    /// The `k` nearest actions of `e`, closest first (for recommendations).
+    pub fn k_nearest(&mut self, e: &[f32], k: usize) -> Vec<(u32, f32)> {
+        self.nearest(e);
+        let mut all: Vec<(u32, f32)> = self
+            .scratch
+            .iter()
+            .enumerate()
+            .map(|(a, &v)| (a as u32, v))
+            .collect();
+        let k = k.min(all.len());
+        if k == 0 {
+            return Vec::new();
+        }
+        all.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all.truncate(k);
+        all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn brute_force(table: &[f32], d: usize, e: &[f32]) -> u32 {
+        let mut best = (f32::INFINITY, 0u32);
+        for (a, row) in table.chunks_exact(d).enumerate() {
+            let dist: f32 = row.iter().zip(e).map(|(r, x)| (r - x) * (r - x)).sum();
+            if dist < best.0 {
+                best = (dist, a as u32);
+            }
+        }
+        best.1
+    }
+
+    #[test]
+    fn lookup_equals_brute_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        for (n, d) in [(512, 2), (4096, 2), (100, 7), (1, 3)] {
+            let table: Vec<f32> = (0..n * d).map(|_| rng.random_range(-1.0..1.0)).collect();
+            let mut index = NearestAction::new(&table, d);
+            let mut batch = Vec::new();
+            let mut want = Vec::new();
+            for _ in 0..200 {
+                let e: Vec<f32> = (0..d).map(|_| rng.random_range(-1.5..1.5)).collect();
+                want.push(brute_force(&table, d, &e));
+                batch.extend_from_slice(&e);
+            }
+            let mut got = Vec::new();
+            index.nearest_batch(&batch, &mut got);
+            assert_eq!(got, want, "n={n} d={d}");
+            let k = index.k_nearest(&batch[..d], 3.min(n));
+            assert_eq!(k[0].0, want[0]);
+        }
+    }
+}

@@ -1,0 +1,60 @@
+//! A tanh multi-layer perceptron with orthogonal initialisation.
+
+use burn::module::Module;
+use burn::nn::{Linear, Tanh};
+use burn::tensor::{Device, Tensor};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+
+use super::seeded_linear;
+
+/// Shape of an MLP.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MlpConfig {
+    /// Input width.
+    pub input: usize,
+    /// Hidden widths (tanh after each).
+    pub hidden: Vec<usize>,
+    /// Output width (no activation).
+    pub output: usize,
+    /// Gain of the output layer's orthogonal initialisation.
+    pub output_gain: f32,
+}
+
+impl MlpConfig {
+    /// Builds the MLP: hidden layers with gain sqrt(2), biases zero.
+    pub fn init(&self, rng: &mut ChaCha8Rng, device: &Device) -> Mlp {
+        let mut layers = Vec::new();
+        let mut width = self.input;
+        for &h in &self.hidden {
+            layers.push(seeded_linear(width, h, 2f32.sqrt(), true, rng, device));
+            width = h;
+        }
+        layers.push(seeded_linear(width, self.output, self.output_gain, true, rng, device));
+        Mlp {
+            layers,
+            activation: Tanh::new(),
+        }
+    }
+}
+
+/// Linear layers with tanh between them.
+#[derive(Module, Debug)]
+pub struct Mlp {
+    layers: Vec<Linear>,
+    activation: Tanh,
+}
+
+impl Mlp {
+    /// `[batch, input] -> [batch, output]`.
+    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+        let last = self.layers.len().saturating_sub(1);
+        for (i, layer) in self.layers.iter().enumerate() {
+            x = layer.forward(x);
+            if i < last {
+                x = self.activation.forward(x);
+            }
+        }
+        x
+    }
+}

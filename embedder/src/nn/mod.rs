@@ -1,0 +1,15 @@
+//! Model building blocks shared by the embedder and the learner: the device choice, seeded
+//! initialisation, a tanh MLP, host <-> tensor conversion, global gradient-norm clipping, and
+//! weight snapshots as bytes.
+
+mod clip;
+mod device;
+mod init;
+mod io;
+mod mlp;
+
+pub use clip::clip_global_grad_norm;
+pub use device::DeviceKind;
+pub use init::{linear_from_host, orthogonal, seeded_linear};
+pub use io::{from_bytes, into_bytes, tensor1, tensor2, to_vec, RecordError};
+pub use mlp::{Mlp, MlpConfig};

@@ -1,0 +1,302 @@
+//! The embedder's training loop: collect uniformly random transitions, pre-train phi/g/T/f
+//! on them, then keep training on the replay buffer on a schedule; every finished round
+//! publishes a new versioned snapshot.
+
+use burn::optim::decay::WeightDecayConfig;
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::nn::{self, DeviceKind};
+use crate::replay::Replay;
+use crate::{EmbeddingConfig, EmbeddingModel};
+
+/// What the trainer has done so far.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct EmbedderStats {
+    /// Published snapshot version (0: none yet).
+    pub version: u64,
+    /// Minibatch steps taken.
+    pub steps: u64,
+    /// Mean model loss (-log P(s'|s,a) or MSE) of the last round.
+    pub model_loss: f32,
+    /// Mean decoder loss of the last round (0 for discrete actions).
+    pub decoder_loss: f32,
+    /// Transitions received.
+    pub transitions: u64,
+    /// Transitions the replay buffer dropped to make room.
+    pub overwritten: u64,
+}
+
+/// Owns the embedding model, its optimiser and the replay buffer.
+#[derive(Debug)]
+pub struct EmbedderTrainer {
+    config: EmbeddingConfig,
+    model: EmbeddingModel,
+    optim: OptimDebug,
+    replay: Replay,
+    rng: ChaCha8Rng,
+    since_update: usize,
+    stats: EmbedderStats,
+}
+
+/// The optimiser (burn's has no `Debug`).
+struct OptimDebug(ModuleOptimizer);
+
+impl std::fmt::Debug for OptimDebug {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Adam")
+    }
+}
+
+impl EmbedderTrainer {
+    /// A trainer with a freshly initialised model.
+    pub fn new(
+        config: EmbeddingConfig,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        seed: u64,
+        device: DeviceKind,
+    ) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x656d_6265_6464_6572);
+        let model = EmbeddingModel::new(&config, states, actions, &mut rng, &device.train_device());
+        let optim = AdamConfig::new()
+            .with_epsilon(1e-8)
+            .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
+            .init();
+        Self {
+            replay: Replay::new(config.replay_capacity, states, actions),
+            config,
+            model,
+            optim: OptimDebug(optim),
+            rng,
+            since_update: 0,
+            stats: EmbedderStats::default(),
+        }
+    }
+
+    /// Statistics so far.
+    pub fn stats(&self) -> &EmbedderStats {
+        &self.stats
+    }
+
+    /// The model being trained (autodiff device).
+    pub fn model(&self) -> &EmbeddingModel {
+        &self.model
+    }
+
+    /// Transitions in the replay buffer.
+    pub fn replay_len(&self) -> usize {
+        self.replay.len()
+    }
+
+    /// Whether pre-training is done (a first snapshot exists).
+    pub fn pretrained(&self) -> bool {
+        self.stats.version > 0
+    }
+
+    /// Validates and stores a batch of transitions.
+    pub fn ingest(&mut self, batch: &TransitionBatch) -> Result<(), ValidationError> {
+        batch.validate(self.model.state_space(), self.model.action_space())?;
+        self.replay.push(batch);
+        self.since_update += batch.len();
+        self.stats.transitions += batch.len() as u64;
+        self.stats.overwritten = self.replay.overwritten();
+        Ok(())
+    }
+
+    /// Trains if a round is due (pre-training once enough random transitions arrived, then
+    /// continuous updates every `update_every` transitions) and returns the new snapshot.
+    pub fn poll(&mut self) -> Result<Option<EmbeddingSnapshot>, nn::RecordError> {
+        if !self.pretrained() {
+            if self.replay.len() < self.config.pretrain_transitions {
+                return Ok(None);
+            }
+            self.pretrain();
+        } else if self.config.update_every > 0 && self.since_update >= self.config.update_every {
+            let lr = self.config.update_lr;
+            let steps = self.config.update_steps;
+            let mut loss = (0.0, 0.0);
+            for _ in 0..steps {
+                let mb = self.replay.sample(self.config.batch_size, &mut self.rng);
+                let l = self.step(&mb, lr);
+                loss = (loss.0 + l.0 / steps as f32, loss.1 + l.1 / steps as f32);
+            }
+            self.stats.model_loss = loss.0;
+            self.stats.decoder_loss = loss.1;
+        } else {
+            return Ok(None);
+        }
+        self.since_update = 0;
+        self.stats.version += 1;
+        self.snapshot().map(Some)
+    }
+
+    /// Pre-training: `pretrain_epochs` passes of shuffled minibatches over the buffer.
+    fn pretrain(&mut self) {
+        let n = self.replay.len();
+        let mut order: Vec<usize> = (0..n).collect();
+        let bs = self.config.batch_size.min(n);
+        let lr = self.config.lr;
+        let mut loss = (0.0, 0.0);
+        for _ in 0..self.config.pretrain_epochs {
+            order.shuffle(&mut self.rng);
+            let (mut sum, mut count) = ((0.0, 0.0), 0);
+            for rows in order.chunks(bs) {
+                let mb = self.replay.gather(rows);
+                let l = self.step(&mb, lr);
+                sum = (sum.0 + l.0, sum.1 + l.1);
+                count += 1;
+            }
+            loss = (sum.0 / count as f32, sum.1 / count as f32);
+        }
+        self.stats.model_loss = loss.0;
+        self.stats.decoder_loss = loss.1;
+        tracing::info!(
+            transitions = n,
+            epochs = self.config.pretrain_epochs,
+            model_loss = loss.0,
+            decoder_loss = loss.1,
+            "embedding pre-trained"
+        );
+    }
+
+    /// One Adam step on the joint loss of phi, g, T and (detached) f; returns both losses.
+    pub fn step(&mut self, mb: &crate::replay::Minibatch, lr: f64) -> (f32, f32) {
+        let (model_loss, decoder_loss) = self.model.losses(&mb.states, &mb.actions, &mb.next_states);
+        let total = model_loss.clone() + decoder_loss.clone();
+        let grads = GradientsParams::from_grads(total.backward(), self.model.net());
+        let net = self.optim.0.step(lr, self.model.net().clone(), grads);
+        self.model.set_net(net);
+        self.stats.steps += 1;
+        (
+            model_loss.into_scalar::<f32>(),
+            decoder_loss.into_scalar::<f32>(),
+        )
+    }
+
+    /// Mean losses over a fixed set of transitions, without training.
+    pub fn evaluate(&self, mb: &crate::replay::Minibatch) -> (f32, f32) {
+        let valid = self.model.for_inference(&self.model.device().clone().inner());
+        let (a, b) = valid.losses(&mb.states, &mb.actions, &mb.next_states);
+        (a.into_scalar::<f32>(), b.into_scalar::<f32>())
+    }
+
+    /// The current weights as a snapshot with the current version.
+    pub fn snapshot(&self) -> Result<EmbeddingSnapshot, nn::RecordError> {
+        let inference = self.model.for_inference(&self.model.device().clone().inner());
+        Ok(EmbeddingSnapshot {
+            version: self.stats.version,
+            bytes: inference.to_bytes()?,
+            model_loss: self.stats.model_loss,
+            decoder_loss: self.stats.decoder_loss,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::replay::Minibatch;
+    use jsae_proto::{ActionBatch, StateBatch};
+    use rand::Rng;
+
+    /// A fixed dataset of a deterministic ring: s' = (s + a) mod 20.
+    fn ring(n: usize, rng: &mut ChaCha8Rng) -> TransitionBatch {
+        let s: Vec<u32> = (0..n).map(|_| rng.random_range(0..20)).collect();
+        let a: Vec<u32> = (0..n).map(|_| rng.random_range(0..8)).collect();
+        let next = s.iter().zip(&a).map(|(s, a)| (s + a) % 20).collect();
+        TransitionBatch {
+            actor_id: 0,
+            states: StateBatch::Categorical { factors: 1, data: s },
+            actions: ActionBatch::Discrete(a),
+            rewards: vec![0.0; n],
+            next_states: StateBatch::Categorical { factors: 1, data: next },
+            terminated: vec![false; n],
+        }
+    }
+
+    #[test]
+    fn the_embedding_loss_falls_on_a_fixed_dataset() {
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let data = ring(512, &mut rng);
+        let config = EmbeddingConfig {
+            pretrain_transitions: 512,
+            pretrain_epochs: 60,
+            batch_size: 128,
+            ..EmbeddingConfig::default()
+        };
+        let mut t = EmbedderTrainer::new(
+            config,
+            &StateSpace::discrete(20),
+            &ActionSpace::Discrete { n: 8 },
+            1,
+            DeviceKind::Flex,
+        );
+        let fixed = Minibatch {
+            states: data.states.clone(),
+            actions: data.actions.clone(),
+            next_states: data.next_states.clone(),
+        };
+        let before = t.evaluate(&fixed).0;
+        t.ingest(&data).expect("valid");
+        let snap = t.poll().expect("serialises").expect("pre-trained");
+        let after = t.evaluate(&fixed).0;
+        assert!(after < 0.8 * before, "loss {before} -> {after}");
+        assert!((snap.model_loss - after).abs() < 0.5, "{} vs {after}", snap.model_loss);
+    }
+
+    #[test]
+    fn continuous_models_train_phi_g_t_by_mse_and_f_to_reconstruct_actions() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let n = 1024;
+        let s: Vec<f32> = (0..2 * n).map(|_| rng.random_range(0.0..1.0)).collect();
+        let a: Vec<f32> = (0..2 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
+        let next: Vec<f32> = s.iter().zip(&a).map(|(s, a)| s + 0.1 * a).collect();
+        let batch = TransitionBatch {
+            actor_id: 0,
+            states: StateBatch::Real { dim: 2, data: s },
+            actions: ActionBatch::Continuous { dim: 2, data: a },
+            rewards: vec![0.0; n],
+            next_states: StateBatch::Real { dim: 2, data: next },
+            terminated: vec![false; n],
+        };
+        let actions = ActionSpace::Continuous { dim: 2, low: vec![-1.0; 2], high: vec![1.0; 2] };
+        let config = EmbeddingConfig {
+            pretrain_transitions: n,
+            pretrain_epochs: 40,
+            batch_size: 128,
+            ..EmbeddingConfig::default()
+        };
+        let mut t = EmbedderTrainer::new(config, &StateSpace::Real { dim: 2 }, &actions, 1, DeviceKind::Flex);
+        let fixed = Minibatch {
+            states: batch.states.clone(),
+            actions: batch.actions.clone(),
+            next_states: batch.next_states.clone(),
+        };
+        let before = t.evaluate(&fixed);
+        t.ingest(&batch).expect("valid");
+        t.poll().expect("serialises").expect("pre-trained");
+        let after = t.evaluate(&fixed);
+        assert!(after.0 < 0.5 * before.0, "model loss {before:?} -> {after:?}");
+        assert!(after.1 < 0.5 * before.1, "decoder loss {before:?} -> {after:?}");
+    }
+
+    #[test]
+    fn malformed_batches_are_refused_and_nothing_is_stored() {
+        let mut t = EmbedderTrainer::new(
+            EmbeddingConfig::default(),
+            &StateSpace::discrete(20),
+            &ActionSpace::Discrete { n: 8 },
+            1,
+            DeviceKind::Flex,
+        );
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut bad = ring(4, &mut rng);
+        bad.actions = ActionBatch::Discrete(vec![0, 1, 2, 99]);
+        assert!(t.ingest(&bad).is_err());
+        assert_eq!(t.replay_len(), 0);
+    }
+}

@@ -1,0 +1,95 @@
+//! PPO settings.
+
+use serde::{Deserialize, Serialize};
+
+/// PPO settings. Defaults follow the common PPO implementation details (orthogonal init,
+/// Adam eps 1e-5, GAE, clipped surrogate, advantage normalisation, global grad-norm
+/// clipping, linear LR annealing) with the paper's grid where it searched (lr, std, batch,
+/// network size, lambda 0.97).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct PpoConfig {
+    /// Env steps per update (all fragments of one rollout round together).
+    pub batch_steps: usize,
+    /// Passes over the batch per update.
+    pub epochs: usize,
+    /// Steps per minibatch.
+    pub minibatch_size: usize,
+    /// Adam learning rate at the start.
+    pub lr: f64,
+    /// Anneal the learning rate linearly to 0 over the run.
+    pub anneal_lr: bool,
+    /// Discount.
+    pub gamma: f64,
+    /// GAE lambda.
+    pub gae_lambda: f64,
+    /// Surrogate clip range.
+    pub clip: f64,
+    /// Also clip the value loss around the old values.
+    pub clip_value_loss: bool,
+    /// Value loss weight.
+    pub vf_coef: f64,
+    /// Entropy bonus weight.
+    pub ent_coef: f64,
+    /// Global gradient-norm limit.
+    pub max_grad_norm: f32,
+    /// Normalise advantages per minibatch.
+    pub norm_adv: bool,
+    /// Stop an update's epochs early once approx-KL exceeds this (None: never).
+    pub target_kl: Option<f64>,
+    /// Hidden widths of the policy and of the critic (separate networks, tanh).
+    pub hidden: Vec<usize>,
+    /// Initial log standard deviation of the Gaussian policy.
+    pub init_log_std: f32,
+    /// Scale rewards by a running estimate of the discounted return's std.
+    pub reward_scaling: bool,
+    /// Fragments produced by a policy more than this many versions old are dropped.
+    pub max_policy_lag: u64,
+}
+
+impl Default for PpoConfig {
+    fn default() -> Self {
+        Self {
+            batch_steps: 2048,
+            epochs: 10,
+            minibatch_size: 256,
+            lr: 3e-4,
+            anneal_lr: true,
+            gamma: 0.99,
+            gae_lambda: 0.95,
+            clip: 0.2,
+            clip_value_loss: false,
+            vf_coef: 0.5,
+            ent_coef: 0.0,
+            max_grad_norm: 0.5,
+            norm_adv: true,
+            target_kl: None,
+            hidden: vec![64, 64],
+            init_log_std: 0.0,
+            reward_scaling: false,
+            max_policy_lag: 4,
+        }
+    }
+}
+
+impl PpoConfig {
+    /// Checks the settings; the reason names the bad key.
+    pub fn validate(&self) -> Result<(), String> {
+        if self.batch_steps == 0 || self.epochs == 0 || self.minibatch_size == 0 {
+            return Err("ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into());
+        }
+        if !(self.lr > 0.0 && self.lr.is_finite()) {
+            return Err(format!("ppo.lr must be positive, got {}", self.lr));
+        }
+        if !(0.0..=1.0).contains(&self.gamma) || !(0.0..=1.0).contains(&self.gae_lambda) {
+            return Err("ppo.gamma and ppo.gae_lambda must be in [0, 1]".into());
+        }
+        if !(self.clip > 0.0) || !(self.max_grad_norm > 0.0) {
+            return Err("ppo.clip and ppo.max_grad_norm must be positive".into());
+        }
+        if self.hidden.is_empty() || self.hidden.contains(&0) {
+            return Err("ppo.hidden needs at least one positive width".into());
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,25 @@
+//! PPO on embedded tuples (JSAE) or raw states and actions (plain PPO).
+//!
+//! The learner owns the policy and critic, ingests rollout fragments tagged with the policy
+//! and embedding versions that produced them, measures policy lag and drops stale data, runs
+//! PPO updates (GAE with terminated/truncated kept apart, clipped surrogate, value loss,
+//! entropy bonus, per-minibatch advantage normalisation, global grad-norm clipping, linear LR
+//! annealing) and publishes versioned policy snapshots.
+//!
+//! Layout: `config` (settings), `policy` (Gaussian / categorical policy and critic), `gae`,
+//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `record`
+//! (metrics.csv and summary.json).
+
+#![forbid(unsafe_code)]
+
+mod config;
+pub mod gae;
+pub mod normalise;
+mod policy;
+mod ppo;
+mod record;
+
+pub use config::PpoConfig;
+pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet};
+pub use ppo::{clipped_surrogate_loss, Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport};
+pub use record::{MetricsWriter, RunMeta, Summary};

@@ -1,0 +1,281 @@
+//! The policy and the critic: separate tanh MLPs on the policy input `x`, with a diagonal
+//! Gaussian head (state-independent log-std parameter, so the std `exp(log_std)` stays
+//! positive) or a categorical head.
+
+use burn::module::{Module, Param};
+use burn::tensor::activation::log_softmax;
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use jsae_embedder::nn::{self, Mlp, MlpConfig, RecordError};
+use jsae_proto::{ActionBatch, ActionSpace};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use serde::{Deserialize, Serialize};
+
+use crate::PpoConfig;
+
+const LOG_STD_MIN: f32 = -5.0;
+const LOG_STD_MAX: f32 = 2.0;
+const HALF_LOG_2PI: f32 = 0.918_938_5;
+
+/// The distribution the policy outputs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub enum PolicyHead {
+    /// Diagonal Gaussian over `dim` reals (action embeddings, or raw continuous actions).
+    Gaussian {
+        /// Number of components.
+        dim: usize,
+    },
+    /// Categorical over `n` actions.
+    Categorical {
+        /// Number of actions.
+        n: usize,
+    },
+}
+
+impl PolicyHead {
+    /// The space the policy samples in (what fragments carry).
+    pub fn action_space(self) -> ActionSpace {
+        match self {
+            Self::Gaussian { dim } => ActionSpace::Continuous {
+                dim,
+                low: vec![f32::NEG_INFINITY; dim],
+                high: vec![f32::INFINITY; dim],
+            },
+            Self::Categorical { n } => ActionSpace::Discrete { n },
+        }
+    }
+
+    /// Width of the actor network's output.
+    fn outputs(self) -> usize {
+        match self {
+            Self::Gaussian { dim } => dim,
+            Self::Categorical { n } => n,
+        }
+    }
+}
+
+/// Actor and critic weights.
+#[derive(Module, Debug)]
+pub struct PolicyNet {
+    actor: Mlp,
+    critic: Mlp,
+    log_std: Param<Tensor<1>>,
+}
+
+/// What training needs per minibatch.
+#[derive(Debug)]
+pub struct Evaluation {
+    /// Log-probability of the given actions, `[batch]`.
+    pub logp: Tensor<1>,
+    /// Entropy per sample, `[batch]`.
+    pub entropy: Tensor<1>,
+    /// `V(x)`, `[batch]`.
+    pub value: Tensor<1>,
+}
+
+/// A policy with its critic, on one device.
+#[derive(Debug, Clone)]
+pub struct Policy {
+    net: PolicyNet,
+    head: PolicyHead,
+    input: usize,
+    device: Device,
+}
+
+impl Policy {
+    /// Fresh weights: orthogonal init, gain sqrt(2) hidden, 0.01 policy head, 1.0 value head.
+    pub fn new(
+        config: &PpoConfig,
+        input: usize,
+        head: PolicyHead,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
+        let actor = MlpConfig {
+            input,
+            hidden: config.hidden.clone(),
+            output: head.outputs(),
+            output_gain: 0.01,
+        }
+        .init(rng, device);
+        let critic = MlpConfig {
+            input,
+            hidden: config.hidden.clone(),
+            output: 1,
+            output_gain: 1.0,
+        }
+        .init(rng, device);
+        let dim = match head {
+            PolicyHead::Gaussian { dim } => dim,
+            PolicyHead::Categorical { .. } => 1,
+        };
+        let log_std = Param::from_tensor(nn::tensor1(vec![config.init_log_std; dim], device));
+        Self {
+            net: PolicyNet { actor, critic, log_std },
+            head,
+            input,
+            device: device.clone(),
+        }
+    }
+
+    /// The output distribution.
+    pub fn head(&self) -> PolicyHead {
+        self.head
+    }
+
+    /// Width of the input `x`.
+    pub fn input_dim(&self) -> usize {
+        self.input
+    }
+
+    /// The device.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// The weights.
+    pub fn net(&self) -> &PolicyNet {
+        &self.net
+    }
+
+    /// Replaces the weights (after an optimiser step).
+    pub fn set_net(&mut self, net: PolicyNet) {
+        self.net = net;
+    }
+
+    /// A copy for inference on `device`.
+    pub fn for_inference(&self, device: &Device) -> Self {
+        Self {
+            net: self.net.valid().to_device(device),
+            device: device.clone(),
+            ..self.clone()
+        }
+    }
+
+    /// Weights as bytes.
+    pub fn to_bytes(&self) -> Result<Vec<u8>, RecordError> {
+        nn::into_bytes(&self.net)
+    }
+
+    /// Loads weights from bytes (structure checked).
+    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
+        self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        Ok(())
+    }
+
+    fn log_std(&self) -> Tensor<1> {
+        self.net.log_std.val().clamp(LOG_STD_MIN, LOG_STD_MAX)
+    }
+
+    /// Current log-std per component (Gaussian head).
+    pub fn log_std_values(&self) -> Vec<f32> {
+        nn::to_vec(self.log_std())
+    }
+
+    /// `V(x)`: `[batch, input] -> [batch]`.
+    pub fn value(&self, x: Tensor<2>) -> Tensor<1> {
+        let v = self.net.critic.forward(x);
+        let [b, _] = v.dims();
+        v.reshape([b])
+    }
+
+    /// Log-probabilities, entropies and values of `actions` at `x` (with gradients on an
+    /// autodiff device).
+    pub fn evaluate(&self, x: Tensor<2>, actions: &ActionBatch) -> Evaluation {
+        let value = self.value(x.clone());
+        let out = self.net.actor.forward(x); // [batch, outputs]
+        let [batch, width] = out.dims();
+        let (logp, entropy) = match (self.head, actions) {
+            (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
+                let a = nn::tensor2(data.clone(), batch, dim, &self.device);
+                let log_std = self.log_std().reshape([1, dim]); // [1, dim]
+                let z = (a - out) / log_std.clone().exp();
+                let logp = (z.square().mul_scalar(-0.5) - log_std.clone())
+                    .sum_dim(1)
+                    .reshape([batch])
+                    .sub_scalar(HALF_LOG_2PI * dim as f32);
+                let ent = log_std.sum_dim(1).add_scalar((0.5 + HALF_LOG_2PI) * dim as f32);
+                (logp, Tensor::<1>::ones([batch], &self.device).mul(ent.reshape([1])))
+            }
+            (PolicyHead::Categorical { .. }, ActionBatch::Discrete(a)) => {
+                let lp = log_softmax(out, 1); // [batch, n]
+                let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
+                let idx = Tensor::<2, Int>::from_data(TensorData::new(idx, [batch, 1]), &self.device);
+                let logp = lp.clone().gather(1, idx).reshape([batch]);
+                let ent = (lp.clone().exp() * lp).sum_dim(1).reshape([batch]).neg();
+                (logp, ent)
+            }
+            _ => {
+                let _ = width;
+                let zeros = Tensor::<1>::zeros([batch], &self.device);
+                (zeros.clone(), zeros)
+            }
+        };
+        Evaluation { logp, entropy, value }
+    }
+
+    /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of
+    /// `x` (`[batch, input]`), appending them to `actions` and their log-probabilities to
+    /// `logp`.
+    pub fn act(
+        &self,
+        x: &[f32],
+        deterministic: bool,
+        rng: &mut ChaCha8Rng,
+        actions: &mut ActionBatch,
+        logp: &mut Vec<f32>,
+    ) {
+        let batch = x.len() / self.input.max(1);
+        if batch == 0 {
+            return;
+        }
+        let out = nn::to_vec(
+            self.net
+                .actor
+                .forward(nn::tensor2(x.to_vec(), batch, self.input, &self.device)),
+        );
+        match (self.head, actions) {
+            (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
+                let log_std = self.log_std_values();
+                for mean in out.chunks_exact(dim) {
+                    let mut lp = 0.0;
+                    for ((&m, &ls), _) in mean.iter().zip(&log_std).zip(0..dim) {
+                        let z: f32 = if deterministic { 0.0 } else { rng.sample(StandardNormal) };
+                        data.push(m + ls.exp() * z);
+                        lp += -0.5 * z * z - ls - HALF_LOG_2PI;
+                    }
+                    logp.push(lp);
+                }
+            }
+            (PolicyHead::Categorical { n }, ActionBatch::Discrete(chosen)) => {
+                for logits in out.chunks_exact(n) {
+                    let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+                    let sum: f32 = logits.iter().map(|l| (l - max).exp()).sum();
+                    let log_z = max + sum.ln();
+                    let a = if deterministic {
+                        logits
+                            .iter()
+                            .enumerate()
+                            .fold((0, f32::NEG_INFINITY), |b, (i, &l)| if l > b.1 { (i, l) } else { b })
+                            .0
+                    } else {
+                        let mut u = rng.random::<f32>() * sum;
+                        let mut pick = n - 1;
+                        for (i, l) in logits.iter().enumerate() {
+                            u -= (l - max).exp();
+                            if u <= 0.0 {
+                                pick = i;
+                                break;
+                            }
+                        }
+                        pick
+                    };
+                    chosen.push(a as u32);
+                    logp.push(logits[a] - log_z);
+                }
+            }
+            _ => {}
+        }
+    }
+}

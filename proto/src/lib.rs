@@ -1,0 +1,24 @@
+//! Messages exchanged by the JSAE-RL components, and their validation.
+//!
+//! The actor, the embedder and the learner own their state and talk only through the
+//! messages defined here: [`TransitionBatch`] (actor -> embedder), [`RolloutFragment`]
+//! (actor -> learner), [`EmbeddingSnapshot`] and [`PolicySnapshot`] (services -> actors),
+//! and [`EvalReport`] (actor -> learner at the end of a run). In one-process mode they travel
+//! as plain values; the gRPC transport wraps the same types (`proto/jsae.proto`).
+//!
+//! Layout: `spaces` (state and action spaces), `batch` (flat state and action storage),
+//! `messages` (the messages), `validate` (checks every receiver runs on input).
+
+#![forbid(unsafe_code)]
+
+mod batch;
+mod messages;
+mod spaces;
+mod validate;
+
+pub use batch::{ActionBatch, StateBatch};
+pub use messages::{
+    EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot, RolloutFragment, TransitionBatch,
+};
+pub use spaces::{ActionSpace, StateSpace};
+pub use validate::ValidationError;

@@ -1,0 +1,60 @@
+//! Helpers shared by the workspace integration tests.
+
+#![forbid(unsafe_code)]
+
+use std::path::PathBuf;
+
+use jsae_actor::envs::EnvName;
+use jsae_actor::{Algo, TrainConfig};
+
+/// A fresh, empty directory under the system temp dir for one test.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("jsae-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("temp dir {}: {e}", dir.display()));
+    dir
+}
+
+/// A configuration small enough for a test: a short run with a small pre-training set.
+pub fn small_config(env: EnvName, algo: Algo, seed: u64, out: PathBuf) -> TrainConfig {
+    let mut c = TrainConfig::defaults(env, algo);
+    c.seed = seed;
+    c.env_steps = 16_384;
+    c.envs_per_actor = 8;
+    c.rollout_len = 64;
+    c.eval_episodes = 3;
+    c.embedding.pretrain_transitions = 4_096;
+    c.embedding.pretrain_epochs = 3;
+    c.ppo.epochs = 2;
+    c.out = out;
+    c
+}
+
+/// `summary.json` without the fields that measure time.
+pub fn summary_without_timing(dir: &std::path::Path) -> serde_json::Value {
+    let text = std::fs::read_to_string(dir.join("summary.json")).expect("summary.json written");
+    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary.json is JSON");
+    if let Some(map) = v.as_object_mut() {
+        map.remove("wall_seconds");
+        map.remove("steps_per_second");
+    }
+    v
+}
+
+/// `metrics.csv` without its `wall_seconds` column.
+pub fn metrics_without_timing(dir: &std::path::Path) -> Vec<String> {
+    let text = std::fs::read_to_string(dir.join("metrics.csv")).expect("metrics.csv written");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or("").split(',').collect();
+    let wall = header.iter().position(|h| *h == "wall_seconds");
+    text.lines()
+        .map(|l| {
+            l.split(',')
+                .enumerate()
+                .filter(|(i, _)| Some(*i) != wall)
+                .map(|(_, c)| c)
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect()
+}
