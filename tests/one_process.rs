@@ -3,7 +3,7 @@
 
 use jsae_actor::envs::EnvName;
 use jsae_actor::progress::Progress;
-use jsae_actor::{train_one_process, Algo};
+use jsae_actor::{Algo, train_one_process};
 use jsae_embedder::nn::DeviceKind;
 use jsae_tests::{metrics_without_timing, small_config, summary_without_timing, temp_dir};
 
@@ -17,15 +17,24 @@ fn the_same_seed_gives_the_same_summary_twice() {
             dir
         })
         .collect();
-    let (a, b) = (summary_without_timing(&runs[0]), summary_without_timing(&runs[1]));
+    let (a, b) = (
+        summary_without_timing(&runs[0]),
+        summary_without_timing(&runs[1]),
+    );
     assert_eq!(a, b);
     assert!(a["learner_updates"].as_u64().unwrap_or(0) > 0, "{a}");
-    assert_eq!(metrics_without_timing(&runs[0]), metrics_without_timing(&runs[1]));
+    assert_eq!(
+        metrics_without_timing(&runs[0]),
+        metrics_without_timing(&runs[1])
+    );
     // a different seed gives a different run
     let dir = temp_dir("determinism-other-seed");
     let config = small_config(EnvName::GridworldDiscrete, Algo::Jsae, 4, dir.clone());
     train_one_process(&config, &mut Progress::new(0, true)).expect("run completes");
-    assert_ne!(metrics_without_timing(&runs[0]), metrics_without_timing(&dir));
+    assert_ne!(
+        metrics_without_timing(&runs[0]),
+        metrics_without_timing(&dir)
+    );
 }
 
 #[test]
@@ -35,8 +44,18 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
     let outcome = train_one_process(&config, &mut Progress::new(0, true)).expect("run completes");
     let summary = summary_without_timing(&dir);
     for key in [
-        "env", "algo", "seed", "env_steps", "eval_episodes", "eval_return_mean", "eval_return_std",
-        "eval_success_rate", "learner_updates", "policy_lag_mean", "policy_lag_max", "embedding_version",
+        "env",
+        "algo",
+        "seed",
+        "env_steps",
+        "eval_episodes",
+        "eval_return_mean",
+        "eval_return_std",
+        "eval_success_rate",
+        "learner_updates",
+        "policy_lag_mean",
+        "policy_lag_max",
+        "embedding_version",
     ] {
         assert!(summary.get(key).is_some(), "summary lacks {key}: {summary}");
     }
@@ -44,14 +63,29 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
     assert!(summary["env_steps"].as_u64().unwrap_or(0) >= 16_384);
     assert!(summary["embedding_version"].as_u64().unwrap_or(0) >= 1);
     let config_text = std::fs::read_to_string(dir.join("config.toml")).expect("config.toml");
-    assert!(config_text.contains("seed = 1") && config_text.contains("[embedding]"), "{config_text}");
+    assert!(
+        config_text.contains("seed = 1") && config_text.contains("[embedding]"),
+        "{config_text}"
+    );
     let metrics = std::fs::read_to_string(dir.join("metrics.csv")).expect("metrics.csv");
     let header = metrics.lines().next().unwrap_or("");
-    for col in ["env_steps", "wall_seconds", "return_mean", "policy_lag_mean", "policy_loss", "value_loss"] {
-        assert!(header.split(',').any(|c| c == col), "metrics.csv lacks {col}");
+    for col in [
+        "env_steps",
+        "wall_seconds",
+        "return_mean",
+        "policy_lag_mean",
+        "policy_loss",
+        "value_loss",
+    ] {
+        assert!(
+            header.split(',').any(|c| c == col),
+            "metrics.csv lacks {col}"
+        );
     }
     assert!(metrics.lines().count() > 2);
-    let checkpoints: Vec<_> = std::fs::read_dir(dir.join("checkpoints")).expect("checkpoints").collect();
+    let checkpoints: Vec<_> = std::fs::read_dir(dir.join("checkpoints"))
+        .expect("checkpoints")
+        .collect();
     assert_eq!(checkpoints.len(), 2, "policy and embedding checkpoints");
     assert!(outcome.plots.iter().all(|p| p.exists()) && outcome.plots.len() == 2);
 }
@@ -66,13 +100,21 @@ fn both_algorithms_train_on_every_environment_and_on_both_devices() {
         (EnvName::GridworldDiscrete, Algo::Ppo, DeviceKind::Ndarray),
         (EnvName::GridworldDiscrete, Algo::Jsae, DeviceKind::Ndarray),
     ] {
-        let dir = temp_dir(&format!("{}-{}-{}", env.as_str(), algo.as_str(), device.as_str()));
+        let dir = temp_dir(&format!(
+            "{}-{}-{}",
+            env.as_str(),
+            algo.as_str(),
+            device.as_str()
+        ));
         let mut config = small_config(env, algo, 2, dir.clone());
         config.device = device;
         let outcome = train_one_process(&config, &mut Progress::new(0, true))
             .unwrap_or_else(|e| panic!("{env:?} {algo:?} {device:?}: {e}"));
         let s = &outcome.summary;
-        assert!(s.learner_updates > 0 && s.eval_return_mean.is_finite(), "{s:?}");
+        assert!(
+            s.learner_updates > 0 && s.eval_return_mean.is_finite(),
+            "{s:?}"
+        );
         assert_eq!(s.device, device.as_str());
         assert_eq!(s.eval_success_rate.is_some(), env != EnvName::Slotmachine);
     }

@@ -3,15 +3,15 @@
 
 use std::time::Instant;
 
-use jsae_embedder::nn::DeviceKind;
 use jsae_embedder::EmbedderTrainer;
+use jsae_embedder::nn::DeviceKind;
 use jsae_learner::{Ingested, Learner};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::{Algo, TrainConfig};
 use crate::envs::EnvName;
-use crate::worker::{policy_shape, ActorWorker};
+use crate::worker::{ActorWorker, policy_shape};
 
 /// Measurements on one device.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -78,12 +78,19 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
     let mut elapsed = 0.0;
     for _ in 0..updates {
         let mut fragments = Vec::new();
-        while fragments.iter().map(|f: &jsae_proto::RolloutFragment| f.len()).sum::<usize>() < batch {
+        while fragments
+            .iter()
+            .map(|f: &jsae_proto::RolloutFragment| f.len())
+            .sum::<usize>()
+            < batch
+        {
             fragments.extend(w.collect(config.rollout_len).fragments);
         }
         for f in &mut fragments {
             f.policy_version = learner.version();
-            f.rewards.iter_mut().for_each(|r| *r += rng.random_range(-0.01..0.01));
+            f.rewards
+                .iter_mut()
+                .for_each(|r| *r += rng.random_range(-0.01..0.01));
         }
         let t = Instant::now();
         for f in fragments {
@@ -114,10 +121,18 @@ pub fn run(quick: bool) -> String {
         "measure", "flex", "ndarray", "ndarray / flex"
     ));
     let rows = [
-        ("PPO update (samples/s, higher=better)", flex.update_samples_per_s, nd.update_samples_per_s),
+        (
+            "PPO update (samples/s, higher=better)",
+            flex.update_samples_per_s,
+            nd.update_samples_per_s,
+        ),
         ("PPO update (ms per batch)", flex.update_ms, nd.update_ms),
         ("act step, 1 env (us)", flex.act_batch1_us, nd.act_batch1_us),
-        ("act step, 64 envs (us)", flex.act_batch64_us, nd.act_batch64_us),
+        (
+            "act step, 64 envs (us)",
+            flex.act_batch64_us,
+            nd.act_batch64_us,
+        ),
     ];
     for (name, f, n) in rows {
         out.push_str(&format!("{name:<34} {f:>12.1} {n:>12.1} {:>16.2}\n", n / f));

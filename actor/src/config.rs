@@ -4,12 +4,12 @@
 
 use std::path::{Path, PathBuf};
 
-use jsae_embedder::nn::DeviceKind;
 use jsae_embedder::EmbeddingConfig;
+use jsae_embedder::nn::DeviceKind;
 use jsae_learner::PpoConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::envs::{validate_env_config, EnvConfig, EnvName};
+use crate::envs::{EnvConfig, EnvName, validate_env_config};
 
 /// The algorithms `jsae train --algo` names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -171,10 +171,12 @@ fn overlay<T: Serialize + serde::de::DeserializeOwned>(
         message: e.to_string(),
     })?;
     merge(&mut value, part);
-    value.try_into().map_err(|e: toml::de::Error| ConfigError::Parse {
-        path: path.into(),
-        message: e.to_string(),
-    })
+    value
+        .try_into()
+        .map_err(|e: toml::de::Error| ConfigError::Parse {
+            path: path.into(),
+            message: e.to_string(),
+        })
 }
 
 fn unreachable_roundtrip() -> ! {
@@ -193,6 +195,8 @@ impl TrainConfig {
         }
         if algo == Algo::Jsae {
             ppo.gae_lambda = 0.97;
+            ppo.tanh_mean = true;
+            ppo.ent_coef = 0.05;
         }
         Self {
             env,
@@ -306,10 +310,16 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("jsae-config-{}", std::process::id()));
         std::fs::create_dir_all(&dir).expect("temp dir");
         let file = dir.join("run.toml");
-        std::fs::write(&file, "seed = 7\n[ppo]\nepochs = 3\n[environment.gridworld]\nactuators = 4\n")
-            .expect("write");
+        std::fs::write(
+            &file,
+            "seed = 7\n[ppo]\nepochs = 3\n[environment.gridworld]\nactuators = 4\n",
+        )
+        .expect("write");
         let c = TrainConfig::from_layers(None, None, Some(&file)).expect("parses");
-        assert_eq!((c.seed, c.ppo.epochs, c.environment.gridworld.actuators), (7, 3, 4));
+        assert_eq!(
+            (c.seed, c.ppo.epochs, c.environment.gridworld.actuators),
+            (7, 3, 4)
+        );
         assert_eq!(c.ppo.lr, PpoConfig::default().lr);
         // the saved config reads back as the same configuration
         let saved = dir.join("saved.toml");
@@ -325,7 +335,12 @@ mod tests {
     fn bad_values_are_refused_with_a_reason() {
         let mut c = TrainConfig::defaults(EnvName::Gridworld, Algo::Jsae);
         c.env_steps = 1000;
-        assert!(c.validate().expect_err("too short").to_string().contains("pretrain"));
+        assert!(
+            c.validate()
+                .expect_err("too short")
+                .to_string()
+                .contains("pretrain")
+        );
         let c = TrainConfig::defaults(EnvName::Gridworld, Algo::Ra);
         assert!(c.validate().is_err());
     }

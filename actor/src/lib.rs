@@ -17,5 +17,5 @@ pub mod train;
 pub mod worker;
 
 pub use config::{Algo, ConfigError, TrainConfig};
-pub use train::{train_one_process, RunOutcome, TrainError};
+pub use train::{RunOutcome, TrainError, train_one_process};
 pub use worker::{ActorWorker, Rollout};

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use jsae_embedder::Embedding;
 
 use crate::config::TrainConfig;
-use crate::envs::{gridworld::action_motions, EnvName};
+use crate::envs::{EnvName, gridworld::action_motions};
 
 const W: f64 = 640.0;
 const H: f64 = 400.0;
@@ -24,11 +24,19 @@ struct Frame {
 impl Frame {
     fn fit(xs: impl Iterator<Item = f64> + Clone, ys: impl Iterator<Item = f64> + Clone) -> Self {
         let lo_hi = |v: &mut dyn Iterator<Item = f64>| {
-            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| (a.min(x), b.max(x)))
+            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
+                (a.min(x), b.max(x))
+            })
         };
         let (x0, x1) = lo_hi(&mut xs.clone());
         let (y0, y1) = lo_hi(&mut ys.clone());
-        let widen = |a: f64, b: f64| if (b - a).abs() < 1e-12 { (a - 0.5, b + 0.5) } else { (a, b) };
+        let widen = |a: f64, b: f64| {
+            if (b - a).abs() < 1e-12 {
+                (a - 0.5, b + 0.5)
+            } else {
+                (a, b)
+            }
+        };
         let (x0, x1) = widen(x0, x1);
         let (y0, y1) = widen(y0, y1);
         Self { x0, x1, y0, y1 }
@@ -49,8 +57,17 @@ impl Frame {
             W - 2.0 * PAD,
             H - 2.0 * PAD
         );
-        let _ = write!(svg, r#"<text x="{}" y="25" text-anchor="middle" font-size="16">{title}</text>"#, W / 2.0);
-        let _ = write!(svg, r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">{xlabel}</text>"#, W / 2.0, H - 12.0);
+        let _ = write!(
+            svg,
+            r#"<text x="{}" y="25" text-anchor="middle" font-size="16">{title}</text>"#,
+            W / 2.0
+        );
+        let _ = write!(
+            svg,
+            r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">{xlabel}</text>"#,
+            W / 2.0,
+            H - 12.0
+        );
         let _ = write!(
             svg,
             r#"<text x="14" y="{}" text-anchor="middle" font-size="12" transform="rotate(-90 14 {})">{ylabel}</text>"#,
@@ -63,7 +80,11 @@ impl Frame {
             (self.y0, "end", PAD - 4.0, H - PAD),
             (self.y1, "end", PAD - 4.0, PAD + 10.0),
         ] {
-            let _ = write!(svg, r#"<text x="{x}" y="{y}" text-anchor="{anchor}" font-size="11">{}</text>"#, fmt_num(v));
+            let _ = write!(
+                svg,
+                r#"<text x="{x}" y="{y}" text-anchor="{anchor}" font-size="11">{}</text>"#,
+                fmt_num(v)
+            );
         }
     }
 }
@@ -105,7 +126,11 @@ fn polyline(svg: &mut String, frame: &Frame, pts: &[(f64, f64)], colour: &str) {
         .iter()
         .map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y)))
         .collect();
-    let _ = write!(svg, r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#, path.join(" "));
+    let _ = write!(
+        svg,
+        r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#,
+        path.join(" ")
+    );
 }
 
 /// The learning curve of a run directory's `metrics.csv`.
@@ -117,7 +142,12 @@ pub fn learning_curve(metrics_csv: &str, title: &str) -> String {
         ret.iter().map(|p| p.0).chain(std::iter::once(0.0)),
         ret.iter().chain(&success).map(|p| p.1),
     );
-    frame.axes(&mut svg, title, "env steps", "training episode return (blue), success rate (green)");
+    frame.axes(
+        &mut svg,
+        title,
+        "env steps",
+        "training episode return (blue), success rate (green)",
+    );
     polyline(&mut svg, &frame, &ret, "#1f77b4");
     polyline(&mut svg, &frame, &success, "#2ca02c");
     svg.push_str("</svg>\n");
@@ -125,7 +155,13 @@ pub fn learning_curve(metrics_csv: &str, title: &str) -> String {
 }
 
 /// Scatter of 2-D points with one colour each.
-pub fn scatter(points: &[(f64, f64)], colours: &[(f64, f64, f64)], title: &str, xl: &str, yl: &str) -> String {
+pub fn scatter(
+    points: &[(f64, f64)],
+    colours: &[(f64, f64, f64)],
+    title: &str,
+    xl: &str,
+    yl: &str,
+) -> String {
     let mut svg = svg_open();
     let frame = Frame::fit(points.iter().map(|p| p.0), points.iter().map(|p| p.1));
     frame.axes(&mut svg, title, xl, yl);
@@ -146,35 +182,40 @@ pub fn scatter(points: &[(f64, f64)], colours: &[(f64, f64, f64)], title: &str, 
 }
 
 /// Writes the plots of a finished run into its directory; returns their paths.
-pub fn write_run_plots(dir: &Path, config: &TrainConfig, embedding: Option<&Embedding>) -> std::io::Result<Vec<PathBuf>> {
+pub fn write_run_plots(
+    dir: &Path,
+    config: &TrainConfig,
+    embedding: Option<&Embedding>,
+) -> std::io::Result<Vec<PathBuf>> {
     let mut written = Vec::new();
     let csv = std::fs::read_to_string(dir.join("metrics.csv"))?;
-    let title = format!("{} / {} / seed {}", config.env.as_str(), config.algo.as_str(), config.seed);
+    let title = format!(
+        "{} / {} / seed {}",
+        config.env.as_str(),
+        config.algo.as_str(),
+        config.seed
+    );
     let path = dir.join("learning_curve.svg");
     std::fs::write(&path, learning_curve(&csv, &title))?;
     written.push(path);
     let gridworld = matches!(config.env, EnvName::Gridworld | EnvName::GridworldDiscrete);
-    if let (true, Some(e)) = (gridworld, embedding) {
-        if let Some(table) = e.action_table() {
-            let d = e.action_dim();
-            if d >= 2 {
-                let motions = action_motions(config.environment.gridworld.actuators);
-                let points: Vec<(f64, f64)> = table
-                    .chunks_exact(d)
-                    .map(|r| (f64::from(r[0]), f64::from(r[1])))
-                    .collect();
-                let colours: Vec<(f64, f64, f64)> = motions
-                    .iter()
-                    .map(|m| ((m[0] + 1.0) / 2.0, (m[1] + 1.0) / 2.0, 0.5))
-                    .collect();
-                let path = dir.join("action_embeddings.svg");
-                std::fs::write(
-                    &path,
-                    scatter(&points, &colours, "action embeddings g(a), coloured by displacement", "e1", "e2"),
-                )?;
-                written.push(path);
-            }
-        }
+    let table = embedding
+        .filter(|e| gridworld && e.action_dim() >= 2)
+        .and_then(|e| Some((e.action_table()?, e.action_dim())));
+    if let Some((table, d)) = table {
+        let motions = action_motions(config.environment.gridworld.actuators);
+        let points: Vec<(f64, f64)> = table
+            .chunks_exact(d)
+            .map(|r| (f64::from(r[0]), f64::from(r[1])))
+            .collect();
+        let colours: Vec<(f64, f64, f64)> = motions
+            .iter()
+            .map(|m| ((m[0] + 1.0) / 2.0, (m[1] + 1.0) / 2.0, 0.5))
+            .collect();
+        let path = dir.join("action_embeddings.svg");
+        let title = "action embeddings g(a), coloured by displacement";
+        std::fs::write(&path, scatter(&points, &colours, title, "e1", "e2"))?;
+        written.push(path);
     }
     Ok(written)
 }

@@ -35,11 +35,15 @@ impl Progress {
     /// A learner update finished.
     pub fn update(&mut self, m: &UpdateMetrics) {
         let ret = m.return_mean.map_or("-".into(), |r| format!("{r:.3}"));
-        let success = m.success_rate.map_or(String::new(), |s| format!(" success {s:.2}"));
+        let success = m
+            .success_rate
+            .map_or(String::new(), |s| format!(" success {s:.2}"));
         if let Some(bar) = &self.bar {
             bar.set_position(m.env_steps.min(self.total));
             bar.set_message(format!("return {ret}{success}"));
-        } else if self.total > 0 && (m.env_steps - self.last_logged >= self.total / 20 || m.update == 1) {
+        } else if self.total > 0
+            && (m.env_steps - self.last_logged >= self.total / 20 || m.update == 1)
+        {
             self.last_logged = m.env_steps;
             tracing::info!(
                 "update {} env_steps {}/{} return {ret}{success} kl {:.4} clip {:.3}",

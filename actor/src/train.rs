@@ -13,7 +13,7 @@ use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 use crate::config::TrainConfig;
 use crate::plot;
 use crate::progress::Progress;
-use crate::worker::{policy_shape, ActorWorker, WorkerError};
+use crate::worker::{ActorWorker, WorkerError, policy_shape};
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
@@ -59,7 +59,10 @@ pub struct RunOutcome {
 }
 
 /// Trains in this process and writes the run directory.
-pub fn train_one_process(config: &TrainConfig, progress: &mut Progress) -> Result<RunOutcome, TrainError> {
+pub fn train_one_process(
+    config: &TrainConfig,
+    progress: &mut Progress,
+) -> Result<RunOutcome, TrainError> {
     config.validate()?;
     let started = Instant::now();
     let dir = config.out.clone();
@@ -70,16 +73,34 @@ pub fn train_one_process(config: &TrainConfig, progress: &mut Progress) -> Resul
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
         .collect();
-    let (states, actions) = (actors[0].state_space().clone(), actors[0].action_space().clone());
+    let (states, actions) = (
+        actors[0].state_space().clone(),
+        actors[0].action_space().clone(),
+    );
     let (input, head) = policy_shape(config, &states, &actions);
     let mut ppo = config.ppo.clone();
     ppo.batch_steps = config.round_steps();
-    let mut learner = Learner::new(ppo, input, head, config.env_steps, config.seed, config.device);
+    let mut learner = Learner::new(
+        ppo,
+        input,
+        head,
+        config.env_steps,
+        config.seed,
+        config.device,
+    );
     let mut embedder = config.algo.uses_embedding().then(|| {
-        EmbedderTrainer::new(config.embedding.clone(), &states, &actions, config.seed, config.device)
+        EmbedderTrainer::new(
+            config.embedding.clone(),
+            &states,
+            &actions,
+            config.seed,
+            config.device,
+        )
     });
 
-    let first = learner.snapshot().map_err(jsae_learner::LearnerError::from)?;
+    let first = learner
+        .snapshot()
+        .map_err(jsae_learner::LearnerError::from)?;
     for a in &mut actors {
         a.set_policy(&first)?;
     }
@@ -92,7 +113,10 @@ pub fn train_one_process(config: &TrainConfig, progress: &mut Progress) -> Resul
             if let Some(emb) = embedder.as_mut() {
                 emb.ingest(&rollout.transitions)
                     .map_err(|e| TrainError::Embedder(e.to_string()))?;
-                if let Some(snap) = emb.poll().map_err(|e| TrainError::Embedder(e.to_string()))? {
+                if let Some(snap) = emb
+                    .poll()
+                    .map_err(|e| TrainError::Embedder(e.to_string()))?
+                {
                     if snap.version == 1 {
                         progress.note(&format!(
                             "embedding pre-trained on {} random transitions (model loss {:.4})",
@@ -143,13 +167,21 @@ pub fn train_one_process(config: &TrainConfig, progress: &mut Progress) -> Resul
         learner.version(),
     );
     let ckpt = dir.join("checkpoints");
-    std::fs::write(ckpt.join(format!("policy-v{}.bpk", last_policy.version)), &last_policy.bytes)
-        .map_err(io(&ckpt))?;
+    std::fs::write(
+        ckpt.join(format!("policy-v{}.bpk", last_policy.version)),
+        &last_policy.bytes,
+    )
+    .map_err(io(&ckpt))?;
     if let Some(e) = &last_embedding {
-        std::fs::write(ckpt.join(format!("embedding-v{}.bpk", e.version)), &e.bytes).map_err(io(&ckpt))?;
+        std::fs::write(ckpt.join(format!("embedding-v{}.bpk", e.version)), &e.bytes)
+            .map_err(io(&ckpt))?;
     }
     summary.write(&dir).map_err(io(&dir))?;
     let plots = plot::write_run_plots(&dir, config, actors[0].embedding()).map_err(io(&dir))?;
     progress.finish();
-    Ok(RunOutcome { summary, dir, plots })
+    Ok(RunOutcome {
+        summary,
+        dir,
+        plots,
+    })
 }

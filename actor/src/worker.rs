@@ -3,8 +3,8 @@
 //! embedder and embedded rollout fragments for the learner. Weights are swapped in whole
 //! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
 
-use jsae_embedder::nn::DeviceKind;
 use jsae_embedder::Embedding;
+use jsae_embedder::nn::DeviceKind;
 use jsae_learner::{Policy, PolicyHead};
 use jsae_proto::{
     ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
@@ -14,7 +14,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::config::{Algo, TrainConfig};
-use crate::envs::{make_env, ActionRef, Env};
+use crate::envs::{ActionRef, Env, make_env};
 
 /// Why a snapshot could not be applied.
 #[derive(Debug, thiserror::Error)]
@@ -39,7 +39,11 @@ pub struct Rollout {
 }
 
 /// The policy input width and head for a run.
-pub fn policy_shape(config: &TrainConfig, states: &StateSpace, actions: &ActionSpace) -> (usize, PolicyHead) {
+pub fn policy_shape(
+    config: &TrainConfig,
+    states: &StateSpace,
+    actions: &ActionSpace,
+) -> (usize, PolicyHead) {
     match config.algo {
         Algo::Jsae | Algo::Ae | Algo::Ra => (
             config.embedding.state_dim,
@@ -210,7 +214,8 @@ impl ActorWorker {
 
     /// Whether actions come from the policy (else uniformly at random).
     fn acting(&self) -> bool {
-        self.policy_version.is_some() && (!self.config.algo.uses_embedding() || self.embedding.is_some())
+        self.policy_version.is_some()
+            && (!self.config.algo.uses_embedding() || self.embedding.is_some())
     }
 
     /// Policy inputs of `states`, `[len, x_dim]`.
@@ -240,7 +245,9 @@ impl ActorWorker {
     /// Maps sampled policy actions to environment actions.
     fn env_actions(&mut self, policy_actions: &ActionBatch, out: &mut ActionBatch) {
         match (&mut self.embedding, policy_actions) {
-            (Some(e), ActionBatch::Continuous { data, .. }) if self.config.algo.uses_embedding() => {
+            (Some(e), ActionBatch::Continuous { data, .. })
+                if self.config.algo.uses_embedding() =>
+            {
                 e.decode(data, out)
             }
             _ => out.extend_from(policy_actions),
@@ -296,7 +303,8 @@ impl ActorWorker {
             logp.clear();
             if acting {
                 self.policy_inputs(&self.current, &mut x);
-                self.policy.act(&x, false, &mut self.rng, &mut policy_actions, &mut logp);
+                self.policy
+                    .act(&x, false, &mut self.rng, &mut policy_actions, &mut logp);
                 self.env_actions(&policy_actions, &mut env_actions);
             } else {
                 self.random_actions(k, &mut env_actions);
@@ -366,7 +374,8 @@ impl ActorWorker {
         if acting {
             self.policy_inputs(&self.current, &mut x);
             for (i, f) in fragments.iter_mut().enumerate() {
-                f.last_next_x.extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
+                f.last_next_x
+                    .extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
                 f.actor_env_steps = self.env_steps;
             }
         } else {
@@ -389,7 +398,8 @@ impl ActorWorker {
             embedding_version: self.embedding_version(),
             episodes: Vec::with_capacity(episodes),
         };
-        let (mut state, mut x, mut logp) = (StateBatch::empty(&self.states), Vec::new(), Vec::new());
+        let (mut state, mut x, mut logp) =
+            (StateBatch::empty(&self.states), Vec::new(), Vec::new());
         let mut policy_action = ActionBatch::empty(&head_space);
         let mut env_action = ActionBatch::empty(&self.actions);
         for _ in 0..episodes {
@@ -401,7 +411,8 @@ impl ActorWorker {
                 policy_action.clear();
                 env_action.clear();
                 self.policy_inputs(&state, &mut x);
-                self.policy.act(&x, true, &mut self.rng, &mut policy_action, &mut logp);
+                self.policy
+                    .act(&x, true, &mut self.rng, &mut policy_action, &mut logp);
                 self.env_actions(&policy_action, &mut env_action);
                 let step = match &env_action {
                     ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[0])),

@@ -39,11 +39,30 @@ fn a_short_run_prints_its_summary() {
     )
     .expect("config");
     let out = jsae(&[
-        "train", "--env", "slotmachine", "--algo", "jsae", "--seed", "5", "--env-steps", "3000",
-        "--quiet", "--out", dir.to_str().unwrap_or("."), "--config", cfg.to_str().unwrap_or("."),
+        "train",
+        "--env",
+        "slotmachine",
+        "--algo",
+        "jsae",
+        "--seed",
+        "5",
+        "--env-steps",
+        "3000",
+        "--quiet",
+        "--out",
+        dir.to_str().unwrap_or("."),
+        "--config",
+        cfg.to_str().unwrap_or("."),
     ]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let stdout = String::from_utf8_lossy(&out.stdout);
-    assert!(stdout.contains("\"eval_return_mean\"") && stdout.contains("\"seed\": 5"), "{stdout}");
+    assert!(
+        stdout.contains("\"eval_return_mean\"") && stdout.contains("\"seed\": 5"),
+        "{stdout}"
+    );
     assert!(dir.join("summary.json").exists() && dir.join("learning_curve.svg").exists());
 }

@@ -13,8 +13,13 @@ pub struct EmbeddingConfig {
     pub action_dim: usize,
     /// Adam learning rate of phi, g, T and f.
     pub lr: f64,
-    /// Adam weight decay (L2) of phi, g, T and f.
+    /// Weight decay of phi, g, T and f.
     pub weight_decay: f32,
+    /// Decoupled weight decay (AdamW). With Adam's L2 decay (`false`, the reference code's
+    /// choice) a table row that gets no gradient, such as an unvisited state's phi(s), is
+    /// pushed to 0 at a full learning-rate step per update, so every state random play never
+    /// reached ends up with the same embedding.
+    pub decoupled_weight_decay: bool,
     /// Transitions per minibatch.
     pub batch_size: usize,
     /// Uniformly random transitions collected before pre-training. 3,000 gives the gridworld
@@ -41,14 +46,15 @@ impl Default for EmbeddingConfig {
             action_dim: 2,
             lr: 0.01,
             weight_decay: 1e-4,
+            decoupled_weight_decay: true,
             batch_size: 512,
             pretrain_transitions: 20_000,
-            pretrain_epochs: 100,
+            pretrain_epochs: 30,
             decoder_hidden: 64,
             replay_capacity: 200_000,
-            update_every: 0,
+            update_every: 20_480,
             update_steps: 50,
-            update_lr: 0.001,
+            update_lr: 0.003,
         }
     }
 }
@@ -59,7 +65,8 @@ impl EmbeddingConfig {
         if self.state_dim == 0 || self.action_dim == 0 {
             return Err("embedding.state_dim and embedding.action_dim must be positive".into());
         }
-        if !(self.lr > 0.0 && self.lr.is_finite()) || !(self.update_lr > 0.0) {
+        let positive = |v: f64| v > 0.0 && v.is_finite();
+        if !positive(self.lr) || !positive(self.update_lr) {
             return Err("embedding.lr and embedding.update_lr must be positive".into());
         }
         if self.batch_size == 0 || self.pretrain_transitions == 0 || self.pretrain_epochs == 0 {

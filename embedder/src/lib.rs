@@ -22,6 +22,6 @@ mod trainer;
 
 pub use config::EmbeddingConfig;
 pub use embedding::Embedding;
-pub use model::{EmbeddingModel, EmbeddingNet};
+pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
 pub use trainer::{EmbedderStats, EmbedderTrainer};

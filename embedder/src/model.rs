@@ -8,14 +8,13 @@
 
 use burn::module::{Module, Param};
 use burn::nn::Linear;
-use burn::tensor::activation::log_softmax;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::{self, Mlp, MlpConfig};
 use crate::EmbeddingConfig;
+use crate::nn::{self, Mlp, MlpConfig};
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]
@@ -45,14 +44,25 @@ pub struct EmbeddingModel {
     device: Device,
 }
 
-fn uniform_table(rows: usize, cols: usize, rng: &mut ChaCha8Rng, device: &Device) -> Param<Tensor<2>> {
+fn uniform_table(
+    rows: usize,
+    cols: usize,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Param<Tensor<2>> {
     // a linear layer on one-hots of width `rows`: U(-1/sqrt(rows), 1/sqrt(rows))
     let k = 1.0 / (rows as f32).sqrt();
     let values: Vec<f32> = (0..rows * cols).map(|_| rng.random_range(-k..k)).collect();
     Param::from_tensor(nn::tensor2(values, rows, cols, device))
 }
 
-fn uniform_linear(d_in: usize, d_out: usize, bias: bool, rng: &mut ChaCha8Rng, device: &Device) -> Linear {
+fn uniform_linear(
+    d_in: usize,
+    d_out: usize,
+    bias: bool,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Linear {
     let k = 1.0 / (d_in as f32).sqrt();
     let w: Vec<f32> = (0..d_in * d_out).map(|_| rng.random_range(-k..k)).collect();
     let b = bias.then(|| (0..d_out).map(|_| rng.random_range(-k..k)).collect());
@@ -70,9 +80,10 @@ impl EmbeddingModel {
     ) -> Self {
         let (m, d) = (config.state_dim, config.action_dim);
         let (phi_table, phi_linear) = match states {
-            StateSpace::Categorical { sizes } => {
-                (Some(uniform_table(sizes.iter().sum(), m, rng, device)), None)
-            }
+            StateSpace::Categorical { sizes } => (
+                Some(uniform_table(sizes.iter().sum(), m, rng, device)),
+                None,
+            ),
             StateSpace::Real { dim } => (None, Some(uniform_linear(*dim, m, false, rng, device))),
         };
         let (g_table, g_linear, decoder) = match actions {
@@ -184,9 +195,12 @@ impl EmbeddingModel {
                     *factors,
                 )
             }
-            StateBatch::Real { dim, data } => {
-                StateInput::Values(nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device))
-            }
+            StateBatch::Real { dim, data } => StateInput::Values(nn::tensor2(
+                data.clone(),
+                data.len() / dim,
+                *dim,
+                &self.device,
+            )),
         }
     }
 
@@ -204,7 +218,9 @@ impl EmbeddingModel {
                 if factors == 1 {
                     rows
                 } else {
-                    rows.reshape([n / factors, factors, m]).sum_dim(1).reshape([n / factors, m])
+                    rows.reshape([n / factors, factors, m])
+                        .sum_dim(1)
+                        .reshape([n / factors, m])
                 }
             }
             (StateInput::Values(v), _, Some(linear)) => linear.forward(v),
@@ -219,13 +235,14 @@ impl EmbeddingModel {
             (ActionBatch::Discrete(a), Some(table), _) => {
                 let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
                 let n = idx.len();
-                table
-                    .val()
-                    .select(0, Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &self.device))
+                table.val().select(
+                    0,
+                    Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &self.device),
+                )
             }
-            (ActionBatch::Continuous { dim, data }, _, Some(linear)) => {
-                linear.forward(nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device))
-            }
+            (ActionBatch::Continuous { dim, data }, _, Some(linear)) => linear.forward(
+                nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device),
+            ),
             _ => unreachable_action(),
         };
         pre.tanh()
@@ -265,14 +282,14 @@ impl EmbeddingModel {
                 let mut start = 0;
                 for (f, &size) in sizes.iter().enumerate() {
                     let logits = out.clone().slice([0..batch, start..start + size]);
-                    let logp = log_softmax(logits, 1);
-                    let target: Vec<i64> =
-                        (0..batch).map(|i| i64::from(data[i * factors + f])).collect();
+                    let target: Vec<i64> = (0..batch)
+                        .map(|i| i64::from(data[i * factors + f]))
+                        .collect();
                     let target = Tensor::<2, Int>::from_data(
                         TensorData::new(target, [batch, 1]),
                         &self.device,
                     );
-                    let nll = logp.gather(1, target).mean().neg();
+                    let nll = cross_entropy(logits, target);
                     total = Some(match total {
                         None => nll,
                         Some(t) => t + nll,
@@ -296,6 +313,15 @@ impl EmbeddingModel {
         };
         (model_loss.reshape([1]), decoder_loss.reshape([1]))
     }
+}
+
+/// Mean cross-entropy of integer targets (`[batch, 1]`) under `logits` (`[batch, n]`),
+/// as `logsumexp(logits) - logits[target]`: cheaper than materialising a log-softmax.
+pub fn cross_entropy(logits: Tensor<2>, target: Tensor<2, Int>) -> Tensor<1> {
+    let shift = logits.clone().max_dim(1).detach(); // [batch, 1]
+    let lse = (logits.clone() - shift.clone()).exp().sum_dim(1).log() + shift;
+    let picked = logits.gather(1, target);
+    (lse - picked).mean()
 }
 
 enum StateInput {

@@ -15,7 +15,7 @@ pub struct NearestAction {
 impl NearestAction {
     /// Builds the index from a row-major `[n, d]` table.
     pub fn new(table: &[f32], d: usize) -> Self {
-        let n = if d == 0 { 0 } else { table.len() / d };
+        let n = table.len().checked_div(d).unwrap_or(0);
         let columns = (0..d)
             .map(|j| (0..n).map(|a| table[a * d + j]).collect())
             .collect();

@@ -136,7 +136,9 @@ impl Replay {
 
     /// `n` transitions drawn uniformly with replacement.
     pub fn sample(&self, n: usize, rng: &mut ChaCha8Rng) -> Minibatch {
-        let rows: Vec<usize> = (0..n).map(|_| rng.random_range(0..self.len.max(1))).collect();
+        let rows: Vec<usize> = (0..n)
+            .map(|_| rng.random_range(0..self.len.max(1)))
+            .collect();
         self.gather(&rows)
     }
 }
@@ -179,17 +181,27 @@ mod tests {
     fn batch(values: &[u32]) -> TransitionBatch {
         TransitionBatch {
             actor_id: 0,
-            states: StateBatch::Categorical { factors: 1, data: values.to_vec() },
+            states: StateBatch::Categorical {
+                factors: 1,
+                data: values.to_vec(),
+            },
             actions: ActionBatch::Discrete(values.to_vec()),
             rewards: vec![0.0; values.len()],
-            next_states: StateBatch::Categorical { factors: 1, data: values.iter().map(|v| v + 1).collect() },
+            next_states: StateBatch::Categorical {
+                factors: 1,
+                data: values.iter().map(|v| v + 1).collect(),
+            },
             terminated: vec![false; values.len()],
         }
     }
 
     #[test]
     fn the_oldest_transitions_are_overwritten_when_full() {
-        let mut r = Replay::new(3, &StateSpace::discrete(10), &ActionSpace::Discrete { n: 10 });
+        let mut r = Replay::new(
+            3,
+            &StateSpace::discrete(10),
+            &ActionSpace::Discrete { n: 10 },
+        );
         r.push(&batch(&[0, 1]));
         r.push(&batch(&[2, 3, 4]));
         assert_eq!((r.len(), r.pushed(), r.overwritten()), (3, 5, 2));

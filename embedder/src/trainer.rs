@@ -3,10 +3,10 @@
 //! publishes a new versioned snapshot.
 
 use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, AdamWConfig, GradientsParams, ModuleOptimizer};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
-use rand::seq::SliceRandom;
 use rand::SeedableRng;
+use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 use crate::nn::{self, DeviceKind};
@@ -62,10 +62,17 @@ impl EmbedderTrainer {
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x656d_6265_6464_6572);
         let model = EmbeddingModel::new(&config, states, actions, &mut rng, &device.train_device());
-        let optim = AdamConfig::new()
-            .with_epsilon(1e-8)
-            .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
-            .init();
+        let optim = if config.decoupled_weight_decay {
+            AdamWConfig::new()
+                .with_epsilon(1e-8)
+                .with_weight_decay(config.weight_decay)
+                .init()
+        } else {
+            AdamConfig::new()
+                .with_epsilon(1e-8)
+                .with_weight_decay(Some(WeightDecayConfig::new(config.weight_decay)))
+                .init()
+        };
         Self {
             replay: Replay::new(config.replay_capacity, states, actions),
             config,
@@ -165,7 +172,8 @@ impl EmbedderTrainer {
 
     /// One Adam step on the joint loss of phi, g, T and (detached) f; returns both losses.
     pub fn step(&mut self, mb: &crate::replay::Minibatch, lr: f64) -> (f32, f32) {
-        let (model_loss, decoder_loss) = self.model.losses(&mb.states, &mb.actions, &mb.next_states);
+        let (model_loss, decoder_loss) =
+            self.model.losses(&mb.states, &mb.actions, &mb.next_states);
         let total = model_loss.clone() + decoder_loss.clone();
         let grads = GradientsParams::from_grads(total.backward(), self.model.net());
         let net = self.optim.0.step(lr, self.model.net().clone(), grads);
@@ -179,14 +187,18 @@ impl EmbedderTrainer {
 
     /// Mean losses over a fixed set of transitions, without training.
     pub fn evaluate(&self, mb: &crate::replay::Minibatch) -> (f32, f32) {
-        let valid = self.model.for_inference(&self.model.device().clone().inner());
+        let valid = self
+            .model
+            .for_inference(&self.model.device().clone().inner());
         let (a, b) = valid.losses(&mb.states, &mb.actions, &mb.next_states);
         (a.into_scalar::<f32>(), b.into_scalar::<f32>())
     }
 
     /// The current weights as a snapshot with the current version.
     pub fn snapshot(&self) -> Result<EmbeddingSnapshot, nn::RecordError> {
-        let inference = self.model.for_inference(&self.model.device().clone().inner());
+        let inference = self
+            .model
+            .for_inference(&self.model.device().clone().inner());
         Ok(EmbeddingSnapshot {
             version: self.stats.version,
             bytes: inference.to_bytes()?,
@@ -210,10 +222,16 @@ mod tests {
         let next = s.iter().zip(&a).map(|(s, a)| (s + a) % 20).collect();
         TransitionBatch {
             actor_id: 0,
-            states: StateBatch::Categorical { factors: 1, data: s },
+            states: StateBatch::Categorical {
+                factors: 1,
+                data: s,
+            },
             actions: ActionBatch::Discrete(a),
             rewards: vec![0.0; n],
-            next_states: StateBatch::Categorical { factors: 1, data: next },
+            next_states: StateBatch::Categorical {
+                factors: 1,
+                data: next,
+            },
             terminated: vec![false; n],
         }
     }
@@ -245,7 +263,11 @@ mod tests {
         let snap = t.poll().expect("serialises").expect("pre-trained");
         let after = t.evaluate(&fixed).0;
         assert!(after < 0.8 * before, "loss {before} -> {after}");
-        assert!((snap.model_loss - after).abs() < 0.5, "{} vs {after}", snap.model_loss);
+        assert!(
+            (snap.model_loss - after).abs() < 0.5,
+            "{} vs {after}",
+            snap.model_loss
+        );
     }
 
     #[test]
@@ -263,14 +285,24 @@ mod tests {
             next_states: StateBatch::Real { dim: 2, data: next },
             terminated: vec![false; n],
         };
-        let actions = ActionSpace::Continuous { dim: 2, low: vec![-1.0; 2], high: vec![1.0; 2] };
+        let actions = ActionSpace::Continuous {
+            dim: 2,
+            low: vec![-1.0; 2],
+            high: vec![1.0; 2],
+        };
         let config = EmbeddingConfig {
             pretrain_transitions: n,
             pretrain_epochs: 40,
             batch_size: 128,
             ..EmbeddingConfig::default()
         };
-        let mut t = EmbedderTrainer::new(config, &StateSpace::Real { dim: 2 }, &actions, 1, DeviceKind::Flex);
+        let mut t = EmbedderTrainer::new(
+            config,
+            &StateSpace::Real { dim: 2 },
+            &actions,
+            1,
+            DeviceKind::Flex,
+        );
         let fixed = Minibatch {
             states: batch.states.clone(),
             actions: batch.actions.clone(),
@@ -280,8 +312,14 @@ mod tests {
         t.ingest(&batch).expect("valid");
         t.poll().expect("serialises").expect("pre-trained");
         let after = t.evaluate(&fixed);
-        assert!(after.0 < 0.5 * before.0, "model loss {before:?} -> {after:?}");
-        assert!(after.1 < 0.5 * before.1, "decoder loss {before:?} -> {after:?}");
+        assert!(
+            after.0 < 0.5 * before.0,
+            "model loss {before:?} -> {after:?}"
+        );
+        assert!(
+            after.1 < 0.5 * before.1,
+            "decoder loss {before:?} -> {after:?}"
+        );
     }
 
     #[test]

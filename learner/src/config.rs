@@ -41,6 +41,9 @@ pub struct PpoConfig {
     pub hidden: Vec<usize>,
     /// Initial log standard deviation of the Gaussian policy.
     pub init_log_std: f32,
+    /// Bound the Gaussian mean with tanh to `[-1, 1]` (JSAE: the action-embedding space is
+    /// tanh-bounded, and a mean outside it maps every sample to the same action).
+    pub tanh_mean: bool,
     /// Scale rewards by a running estimate of the discounted return's std.
     pub reward_scaling: bool,
     /// Fragments produced by a policy more than this many versions old are dropped.
@@ -66,7 +69,8 @@ impl Default for PpoConfig {
             target_kl: None,
             hidden: vec![64, 64],
             init_log_std: 0.0,
-            reward_scaling: false,
+            tanh_mean: false,
+            reward_scaling: true,
             max_policy_lag: 4,
         }
     }
@@ -76,15 +80,21 @@ impl PpoConfig {
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
         if self.batch_steps == 0 || self.epochs == 0 || self.minibatch_size == 0 {
-            return Err("ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into());
+            return Err(
+                "ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into(),
+            );
         }
-        if !(self.lr > 0.0 && self.lr.is_finite()) {
+        if self.lr.is_nan() || self.lr <= 0.0 || self.lr.is_infinite() {
             return Err(format!("ppo.lr must be positive, got {}", self.lr));
         }
         if !(0.0..=1.0).contains(&self.gamma) || !(0.0..=1.0).contains(&self.gae_lambda) {
             return Err("ppo.gamma and ppo.gae_lambda must be in [0, 1]".into());
         }
-        if !(self.clip > 0.0) || !(self.max_grad_norm > 0.0) {
+        if self.clip.is_nan()
+            || self.clip <= 0.0
+            || self.max_grad_norm.is_nan()
+            || self.max_grad_norm <= 0.0
+        {
             return Err("ppo.clip and ppo.max_grad_norm must be positive".into());
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {

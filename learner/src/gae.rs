@@ -25,9 +25,17 @@ pub fn gae(steps: &[GaeStep], gamma: f32, lambda: f32) -> (Vec<f32>, Vec<f32>) {
     let mut adv = vec![0.0; steps.len()];
     let mut next_adv = 0.0;
     for (t, s) in steps.iter().enumerate().rev() {
-        let bootstrap = if s.terminated { 0.0 } else { gamma * s.next_value };
+        let bootstrap = if s.terminated {
+            0.0
+        } else {
+            gamma * s.next_value
+        };
         let delta = s.reward + bootstrap - s.value;
-        let carry = if s.episode_end { 0.0 } else { gamma * lambda * next_adv };
+        let carry = if s.episode_end {
+            0.0
+        } else {
+            gamma * lambda * next_adv
+        };
         adv[t] = delta + carry;
         next_adv = adv[t];
     }
@@ -39,7 +47,13 @@ pub fn gae(steps: &[GaeStep], gamma: f32, lambda: f32) -> (Vec<f32>, Vec<f32>) {
 mod tests {
     use super::*;
 
-    fn step(reward: f32, value: f32, next_value: f32, terminated: bool, truncated: bool) -> GaeStep {
+    fn step(
+        reward: f32,
+        value: f32,
+        next_value: f32,
+        terminated: bool,
+        truncated: bool,
+    ) -> GaeStep {
         GaeStep {
             reward,
             value,
@@ -70,9 +84,23 @@ mod tests {
     #[test]
     fn termination_zeroes_the_bootstrap_and_truncation_keeps_it() {
         // same step ends the episode: terminated -> delta = r - V; truncated -> r + g V' - V
-        let term = gae(&[step(1.0, 0.5, 10.0, true, false), step(5.0, 0.0, 0.0, false, false)], 0.9, 0.5);
+        let term = gae(
+            &[
+                step(1.0, 0.5, 10.0, true, false),
+                step(5.0, 0.0, 0.0, false, false),
+            ],
+            0.9,
+            0.5,
+        );
         assert!((term.0[0] - 0.5).abs() < 1e-6, "{:?}", term.0);
-        let trunc = gae(&[step(1.0, 0.5, 10.0, false, true), step(5.0, 0.0, 0.0, false, false)], 0.9, 0.5);
+        let trunc = gae(
+            &[
+                step(1.0, 0.5, 10.0, false, true),
+                step(5.0, 0.0, 0.0, false, false),
+            ],
+            0.9,
+            0.5,
+        );
         assert!((trunc.0[0] - 9.5).abs() < 1e-6, "{:?}", trunc.0);
         // and in neither case does the next episode's advantage (5.0) leak back
         assert!((term.0[1] - 5.0).abs() < 1e-6);

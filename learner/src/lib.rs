@@ -21,5 +21,7 @@ mod record;
 
 pub use config::PpoConfig;
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet};
-pub use ppo::{clipped_surrogate_loss, Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport};
+pub use ppo::{
+    Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
+};
 pub use record::{MetricsWriter, RunMeta, Summary};

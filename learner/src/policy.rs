@@ -80,6 +80,7 @@ pub struct Policy {
     net: PolicyNet,
     head: PolicyHead,
     input: usize,
+    tanh_mean: bool,
     device: Device,
 }
 
@@ -112,9 +113,14 @@ impl Policy {
         };
         let log_std = Param::from_tensor(nn::tensor1(vec![config.init_log_std; dim], device));
         Self {
-            net: PolicyNet { actor, critic, log_std },
+            net: PolicyNet {
+                actor,
+                critic,
+                log_std,
+            },
             head,
             input,
+            tanh_mean: config.tanh_mean,
             device: device.clone(),
         }
     }
@@ -180,11 +186,20 @@ impl Policy {
         v.reshape([b])
     }
 
+    /// The actor network's output: Gaussian means (tanh-bounded if configured) or logits.
+    fn actor_out(&self, x: Tensor<2>) -> Tensor<2> {
+        let out = self.net.actor.forward(x); // [batch, outputs]
+        match self.head {
+            PolicyHead::Gaussian { .. } if self.tanh_mean => out.tanh(),
+            _ => out,
+        }
+    }
+
     /// Log-probabilities, entropies and values of `actions` at `x` (with gradients on an
     /// autodiff device).
     pub fn evaluate(&self, x: Tensor<2>, actions: &ActionBatch) -> Evaluation {
         let value = self.value(x.clone());
-        let out = self.net.actor.forward(x); // [batch, outputs]
+        let out = self.actor_out(x); // [batch, outputs]
         let [batch, width] = out.dims();
         let (logp, entropy) = match (self.head, actions) {
             (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
@@ -195,13 +210,19 @@ impl Policy {
                     .sum_dim(1)
                     .reshape([batch])
                     .sub_scalar(HALF_LOG_2PI * dim as f32);
-                let ent = log_std.sum_dim(1).add_scalar((0.5 + HALF_LOG_2PI) * dim as f32);
-                (logp, Tensor::<1>::ones([batch], &self.device).mul(ent.reshape([1])))
+                let ent = log_std
+                    .sum_dim(1)
+                    .add_scalar((0.5 + HALF_LOG_2PI) * dim as f32);
+                (
+                    logp,
+                    Tensor::<1>::ones([batch], &self.device).mul(ent.reshape([1])),
+                )
             }
             (PolicyHead::Categorical { .. }, ActionBatch::Discrete(a)) => {
                 let lp = log_softmax(out, 1); // [batch, n]
                 let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
-                let idx = Tensor::<2, Int>::from_data(TensorData::new(idx, [batch, 1]), &self.device);
+                let idx =
+                    Tensor::<2, Int>::from_data(TensorData::new(idx, [batch, 1]), &self.device);
                 let logp = lp.clone().gather(1, idx).reshape([batch]);
                 let ent = (lp.clone().exp() * lp).sum_dim(1).reshape([batch]).neg();
                 (logp, ent)
@@ -212,7 +233,11 @@ impl Policy {
                 (zeros.clone(), zeros)
             }
         };
-        Evaluation { logp, entropy, value }
+        Evaluation {
+            logp,
+            entropy,
+            value,
+        }
     }
 
     /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of
@@ -230,18 +255,19 @@ impl Policy {
         if batch == 0 {
             return;
         }
-        let out = nn::to_vec(
-            self.net
-                .actor
-                .forward(nn::tensor2(x.to_vec(), batch, self.input, &self.device)),
-        );
+        let out =
+            nn::to_vec(self.actor_out(nn::tensor2(x.to_vec(), batch, self.input, &self.device)));
         match (self.head, actions) {
             (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
                 let log_std = self.log_std_values();
                 for mean in out.chunks_exact(dim) {
                     let mut lp = 0.0;
                     for ((&m, &ls), _) in mean.iter().zip(&log_std).zip(0..dim) {
-                        let z: f32 = if deterministic { 0.0 } else { rng.sample(StandardNormal) };
+                        let z: f32 = if deterministic {
+                            0.0
+                        } else {
+                            rng.sample(StandardNormal)
+                        };
                         data.push(m + ls.exp() * z);
                         lp += -0.5 * z * z - ls - HALF_LOG_2PI;
                     }
@@ -257,7 +283,10 @@ impl Policy {
                         logits
                             .iter()
                             .enumerate()
-                            .fold((0, f32::NEG_INFINITY), |b, (i, &l)| if l > b.1 { (i, l) } else { b })
+                            .fold(
+                                (0, f32::NEG_INFINITY),
+                                |b, (i, &l)| if l > b.1 { (i, l) } else { b },
+                            )
                             .0
                     } else {
                         let mut u = rng.random::<f32>() * sum;

@@ -14,14 +14,14 @@ use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
 use jsae_embedder::nn::{self, DeviceKind, RecordError};
 use jsae_proto::{ActionBatch, EpisodeStat, PolicySnapshot, RolloutFragment, ValidationError};
-use rand::seq::SliceRandom;
 use rand::SeedableRng;
+use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use crate::gae::{gae, GaeStep};
+use crate::PpoConfig;
+use crate::gae::{GaeStep, gae};
 use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
-use crate::PpoConfig;
 
 /// Why the learner refused or dropped a fragment.
 #[derive(Debug, thiserror::Error)]
@@ -236,7 +236,10 @@ impl Learner {
     pub fn snapshot(&self) -> Result<PolicySnapshot, RecordError> {
         Ok(PolicySnapshot {
             version: self.version,
-            bytes: self.policy.for_inference(&self.inference_device).to_bytes()?,
+            bytes: self
+                .policy
+                .for_inference(&self.inference_device)
+                .to_bytes()?,
         })
     }
 
@@ -295,7 +298,12 @@ impl Learner {
         let batch_steps = self.pending_steps;
         self.pending_steps = 0;
         let lr = self.learning_rate();
-        let batch = Batch::build(&self.policy, fragments, &self.config, self.reward_scaler.as_mut());
+        let batch = Batch::build(
+            &self.policy,
+            fragments,
+            &self.config,
+            self.reward_scaler.as_mut(),
+        );
         let metrics = self.optimise(&batch, lr);
         self.version += 1;
         self.updates += 1;
@@ -343,18 +351,23 @@ impl Learner {
                 let pg_loss = clipped_surrogate_loss(log_ratio.clone(), m.adv, clip);
                 let v_loss = if self.config.clip_value_loss {
                     let unclipped = (eval.value.clone() - m.returns.clone()).square();
-                    let clipped_v = m.old_values.clone()
-                        + (eval.value - m.old_values).clamp(-clip, clip);
+                    let clipped_v =
+                        m.old_values.clone() + (eval.value - m.old_values).clamp(-clip, clip);
                     let clipped = (clipped_v - m.returns).square();
                     unclipped.max_pair(clipped).mean().mul_scalar(0.5)
                 } else {
                     (eval.value - m.returns).square().mean().mul_scalar(0.5)
                 };
                 let entropy = eval.entropy.mean();
-                let loss = pg_loss.clone() - entropy.clone().mul_scalar(self.config.ent_coef as f32)
+                let loss = pg_loss.clone()
+                    - entropy.clone().mul_scalar(self.config.ent_coef as f32)
                     + v_loss.clone().mul_scalar(self.config.vf_coef as f32);
                 let mut grads = GradientsParams::from_grads(loss.backward(), self.policy.net());
-                let norm = nn::clip_global_grad_norm(self.policy.net(), &mut grads, self.config.max_grad_norm);
+                let norm = nn::clip_global_grad_norm(
+                    self.policy.net(),
+                    &mut grads,
+                    self.config.max_grad_norm,
+                );
                 grad_sum += f64::from(norm);
                 grad_count += 1;
                 let net = self.optim.0.step(lr, self.policy.net().clone(), grads);
@@ -370,10 +383,12 @@ impl Learner {
             }
             epochs += 1;
             last = stats;
-            if let Some(target) = self.config.target_kl {
-                if last.approx_kl() > target {
-                    break;
-                }
+            if self
+                .config
+                .target_kl
+                .is_some_and(|target| last.approx_kl() > target)
+            {
+                break;
             }
         }
         let log_std = match self.policy.head() {
@@ -569,8 +584,14 @@ impl Batch {
     fn explained_variance(&self) -> f64 {
         let n = self.returns.len().max(1) as f64;
         let mean = |v: &[f32]| v.iter().map(|&a| f64::from(a)).sum::<f64>() / n;
-        let var = |v: &[f32], m: f64| v.iter().map(|&a| (f64::from(a) - m).powi(2)).sum::<f64>() / n;
-        let diff: Vec<f32> = self.returns.iter().zip(&self.values).map(|(r, v)| r - v).collect();
+        let var =
+            |v: &[f32], m: f64| v.iter().map(|&a| (f64::from(a) - m).powi(2)).sum::<f64>() / n;
+        let diff: Vec<f32> = self
+            .returns
+            .iter()
+            .zip(&self.values)
+            .map(|(r, v)| r - v)
+            .collect();
         let var_ret = var(&self.returns, mean(&self.returns));
         if var_ret <= 0.0 {
             return 0.0;

@@ -171,11 +171,21 @@ impl Summary {
     ) -> Self {
         let n = eval.episodes.len();
         let mean = eval.episodes.iter().map(|e| e.ret).sum::<f64>() / n.max(1) as f64;
-        let var = eval.episodes.iter().map(|e| (e.ret - mean).powi(2)).sum::<f64>() / n.max(1) as f64;
+        let var = eval
+            .episodes
+            .iter()
+            .map(|e| (e.ret - mean).powi(2))
+            .sum::<f64>()
+            / n.max(1) as f64;
         let successes: Vec<bool> = eval.episodes.iter().filter_map(|e| e.success).collect();
         let success = (!successes.is_empty())
             .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
-        let length = eval.episodes.iter().map(|e| f64::from(e.length)).sum::<f64>() / n.max(1) as f64;
+        let length = eval
+            .episodes
+            .iter()
+            .map(|e| f64::from(e.length))
+            .sum::<f64>()
+            / n.max(1) as f64;
         Self {
             env: meta.env.clone(),
             algo: meta.algo.clone(),

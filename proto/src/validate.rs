@@ -121,7 +121,11 @@ fn check_actions(
 
 impl TransitionBatch {
     /// Checks dimensions, ranges and finiteness against the environment's spaces.
-    pub fn validate(&self, states: &StateSpace, actions: &ActionSpace) -> Result<(), ValidationError> {
+    pub fn validate(
+        &self,
+        states: &StateSpace,
+        actions: &ActionSpace,
+    ) -> Result<(), ValidationError> {
         let n = self.rewards.len();
         check_states("states", &self.states, states, n)?;
         check_states("next_states", &self.next_states, states, n)?;
@@ -150,7 +154,11 @@ impl RolloutFragment {
         check_len("terminated", n, self.terminated.len())?;
         check_len("truncated", n, self.truncated.len())?;
         let cuts = self.truncated.iter().filter(|&&t| t).count();
-        check_len("truncated_next_x", cuts * x_dim, self.truncated_next_x.len())?;
+        check_len(
+            "truncated_next_x",
+            cuts * x_dim,
+            self.truncated_next_x.len(),
+        )?;
         check_finite("truncated_next_x", &self.truncated_next_x)?;
         check_len("last_next_x", x_dim, self.last_next_x.len())?;
         check_finite("last_next_x", &self.last_next_x)
@@ -201,10 +209,16 @@ mod tests {
     fn wrong_dimensions_nan_and_missing_bootstrap_are_refused() {
         let mut f = fragment();
         f.x.pop();
-        assert!(matches!(f.validate(2, &space()), Err(ValidationError::Length { field: "x", .. })));
+        assert!(matches!(
+            f.validate(2, &space()),
+            Err(ValidationError::Length { field: "x", .. })
+        ));
         let mut f = fragment();
         f.rewards[0] = f32::NAN;
-        assert!(matches!(f.validate(2, &space()), Err(ValidationError::NotFinite { .. })));
+        assert!(matches!(
+            f.validate(2, &space()),
+            Err(ValidationError::NotFinite { .. })
+        ));
         let mut f = fragment();
         f.truncated_next_x.clear();
         assert!(f.validate(2, &space()).is_err());
@@ -215,13 +229,22 @@ mod tests {
     fn out_of_range_states_are_refused() {
         let batch = TransitionBatch {
             actor_id: 0,
-            states: StateBatch::Categorical { factors: 1, data: vec![5] },
+            states: StateBatch::Categorical {
+                factors: 1,
+                data: vec![5],
+            },
             actions: ActionBatch::Discrete(vec![0]),
             rewards: vec![0.0],
-            next_states: StateBatch::Categorical { factors: 1, data: vec![0] },
+            next_states: StateBatch::Categorical {
+                factors: 1,
+                data: vec![0],
+            },
             terminated: vec![false],
         };
         let err = batch.validate(&StateSpace::discrete(5), &ActionSpace::Discrete { n: 2 });
-        assert!(matches!(err, Err(ValidationError::OutOfRange { value: 5, .. })));
+        assert!(matches!(
+            err,
+            Err(ValidationError::OutOfRange { value: 5, .. })
+        ));
     }
 }

@@ -8,7 +8,11 @@ use clap::Parser;
 use jsae_actor::envs::EnvName;
 
 #[derive(Parser, Debug)]
-#[command(name = "jsae-actor", version, about = "JSAE-RL actor: steps environments, streams transitions and fragments")]
+#[command(
+    name = "jsae-actor",
+    version,
+    about = "JSAE-RL actor: steps environments, streams transitions and fragments"
+)]
 struct Cli {
     /// Embedder URL.
     #[arg(long, env = "JSAE_EMBEDDER")]

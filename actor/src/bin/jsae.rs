@@ -7,7 +7,7 @@ use std::process::ExitCode;
 use clap::{Args, Parser, Subcommand};
 use jsae_actor::envs::EnvName;
 use jsae_actor::progress::Progress;
-use jsae_actor::{train_one_process, Algo, TrainConfig};
+use jsae_actor::{Algo, TrainConfig, train_one_process};
 use jsae_embedder::nn::DeviceKind;
 
 #[derive(Parser, Debug)]
@@ -71,7 +71,8 @@ struct TrainArgs {
 }
 
 fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
-    let mut c = TrainConfig::from_layers(a.env, a.algo, a.config.as_deref()).map_err(|e| e.to_string())?;
+    let mut c =
+        TrainConfig::from_layers(a.env, a.algo, a.config.as_deref()).map_err(|e| e.to_string())?;
     c.seed = a.seed.unwrap_or(c.seed);
     c.env_steps = a.env_steps.unwrap_or(c.env_steps);
     c.actors = a.actors.unwrap_or(c.actors);
@@ -83,7 +84,12 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
         c.out = out.clone();
     }
     if c.out.as_os_str().is_empty() {
-        c.out = PathBuf::from(format!("runs/{}-{}-seed{}", c.env.as_str(), c.algo.as_str(), c.seed));
+        c.out = PathBuf::from(format!(
+            "runs/{}-{}-seed{}",
+            c.env.as_str(),
+            c.algo.as_str(),
+            c.seed
+        ));
     }
     c.validate().map_err(|e| e.to_string())?;
     Ok(c)

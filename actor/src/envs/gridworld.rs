@@ -265,7 +265,11 @@ mod tests {
         g.set_position([0.2, 0.36]);
         let up = action_towards(&g, 0.0, 1.0);
         let s = g.step(ActionRef::Discrete(up));
-        assert!(g.position()[1] < 0.375, "agent tunnelled to {:?}", g.position());
+        assert!(
+            g.position()[1] < 0.375,
+            "agent tunnelled to {:?}",
+            g.position()
+        );
         assert!((s.reward - (-0.01 - 0.05)).abs() < 1e-12);
         assert!(!s.terminated && !s.truncated);
     }
@@ -276,7 +280,11 @@ mod tests {
         g.set_position([0.54, 0.5]);
         let left = action_towards(&g, -1.0, 0.0);
         g.step(ActionRef::Discrete(left));
-        assert!(g.position()[0] > 0.525, "agent crossed to {:?}", g.position());
+        assert!(
+            g.position()[0] > 0.525,
+            "agent crossed to {:?}",
+            g.position()
+        );
     }
 
     #[test]
@@ -309,9 +317,8 @@ mod tests {
     /// The action whose full step lands closest to `target` (walls ignored).
     fn greedy_action(g: &Gridworld, target: [f64; 2]) -> u32 {
         let p = g.position();
-        let dist = |m: &[f64; 2]| {
-            (p[0] + 0.18 * m[0] - target[0]).hypot(p[1] + 0.18 * m[1] - target[1])
-        };
+        let dist =
+            |m: &[f64; 2]| (p[0] + 0.18 * m[0] - target[0]).hypot(p[1] + 0.18 * m[1] - target[1]);
         let mut best = (f64::MAX, 0);
         for (i, m) in g.motions().iter().enumerate() {
             if dist(m) < best.0 {
@@ -331,7 +338,9 @@ mod tests {
         let mut last = None;
         while steps < 40 {
             let p = g.position();
-            if w + 1 < waypoints.len() && (p[0] - waypoints[w][0]).hypot(p[1] - waypoints[w][1]) < 0.05 {
+            if w + 1 < waypoints.len()
+                && (p[0] - waypoints[w][0]).hypot(p[1] - waypoints[w][1]) < 0.05
+            {
                 w += 1;
             }
             let s = g.step(ActionRef::Discrete(greedy_action(&g, waypoints[w])));
@@ -343,7 +352,11 @@ mod tests {
             }
         }
         let last = last.expect("stepped");
-        assert!(last.terminated && last.success, "ended at {:?}", g.position());
+        assert!(
+            last.terminated && last.success,
+            "ended at {:?}",
+            g.position()
+        );
         assert!(steps < 25 && total > 0.75, "{steps} steps, return {total}");
 
         // the straight way up is blocked by the solid wall: never reaches the goal
@@ -371,6 +384,12 @@ mod tests {
         assert_eq!(g.state_index([0.3, 0.1]), 12 * 40 + 4);
         let mut batch = StateBatch::empty(g.state_space());
         g.push_state(&mut batch);
-        assert_eq!(batch, StateBatch::Categorical { factors: 1, data: vec![484] });
+        assert_eq!(
+            batch,
+            StateBatch::Categorical {
+                factors: 1,
+                data: vec![484]
+            }
+        );
     }
 }

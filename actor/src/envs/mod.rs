@@ -98,14 +98,20 @@ pub fn make_env(name: EnvName, config: &EnvConfig) -> Box<dyn Env> {
 pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     let g = &config.gridworld;
     if !(1..=16).contains(&g.actuators) {
-        return Err(format!("gridworld.actuators must be in 1..=16, got {}", g.actuators));
+        return Err(format!(
+            "gridworld.actuators must be in 1..=16, got {}",
+            g.actuators
+        ));
     }
     if g.max_steps == 0 || g.bins == 0 {
         return Err("gridworld.max_steps and gridworld.bins must be positive".into());
     }
     let s = &config.slotmachine;
     if !(1..=16).contains(&s.bins) {
-        return Err(format!("slotmachine.bins must be in 1..=16, got {}", s.bins));
+        return Err(format!(
+            "slotmachine.bins must be in 1..=16, got {}",
+            s.bins
+        ));
     }
     if !(1..=4).contains(&s.threshold) || s.horizon == 0 {
         return Err("slotmachine.threshold must be in 1..=4 and horizon positive".into());

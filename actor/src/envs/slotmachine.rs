@@ -180,7 +180,10 @@ mod tests {
 
     #[test]
     fn steps_wrap_reels_and_the_horizon_truncates() {
-        let mut s = Slotmachine::new(SlotmachineConfig { horizon: 3, ..Default::default() });
+        let mut s = Slotmachine::new(SlotmachineConfig {
+            horizon: 3,
+            ..Default::default()
+        });
         let mut rng = ChaCha8Rng::seed_from_u64(3);
         s.reset(&mut rng);
         s.set_positions([5, 5, 5, 5]);
@@ -192,7 +195,13 @@ mod tests {
         assert!(last.truncated && !last.terminated);
         let mut batch = StateBatch::empty(s.state_space());
         s.push_state(&mut batch);
-        assert_eq!(batch, StateBatch::Categorical { factors: 1, data: vec![4 + 4 * 6 + 4 * 36 + 4 * 216] });
+        assert_eq!(
+            batch,
+            StateBatch::Categorical {
+                factors: 1,
+                data: vec![4 + 4 * 6 + 4 * 36 + 4 * 216]
+            }
+        );
     }
 
     #[test]

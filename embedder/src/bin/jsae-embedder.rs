@@ -7,7 +7,11 @@ use std::process::ExitCode;
 use clap::Parser;
 
 #[derive(Parser, Debug)]
-#[command(name = "jsae-embedder", version, about = "JSAE-RL embedder: trains phi/g/T/f and publishes snapshots")]
+#[command(
+    name = "jsae-embedder",
+    version,
+    about = "JSAE-RL embedder: trains phi/g/T/f and publishes snapshots"
+)]
 struct Cli {
     /// Address to listen on.
     #[arg(long, env = "JSAE_LISTEN")]

@@ -12,9 +12,17 @@ use rand_distr::StandardNormal;
 /// (Saxe et al.; what PPO implementations use for their layers).
 pub fn orthogonal(rows: usize, cols: usize, gain: f32, rng: &mut ChaCha8Rng) -> Vec<f32> {
     // Orthonormalise the shorter side's vectors with modified Gram-Schmidt.
-    let (n, len) = if rows <= cols { (rows, cols) } else { (cols, rows) };
+    let (n, len) = if rows <= cols {
+        (rows, cols)
+    } else {
+        (cols, rows)
+    };
     let mut vecs: Vec<Vec<f64>> = (0..n)
-        .map(|_| (0..len).map(|_| rng.sample::<f64, _>(StandardNormal)).collect())
+        .map(|_| {
+            (0..len)
+                .map(|_| rng.sample::<f64, _>(StandardNormal))
+                .collect()
+        })
         .collect();
     for i in 0..n {
         for j in 0..i {
@@ -50,7 +58,8 @@ pub fn linear_from_host(
             TensorData::new(weight, [d_in, d_out]),
             device,
         )),
-        bias: bias.map(|b| Param::from_tensor(Tensor::from_data(TensorData::new(b, [d_out]), device))),
+        bias: bias
+            .map(|b| Param::from_tensor(Tensor::from_data(TensorData::new(b, [d_out]), device))),
     }
 }
 

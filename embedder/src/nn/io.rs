@@ -22,7 +22,10 @@ pub fn tensor1(values: Vec<f32>, device: &Device) -> Tensor<1> {
 
 /// The values of a float tensor, row-major.
 pub fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
-    t.into_data().convert::<f32>().try_into_vec::<f32>().unwrap_or_default()
+    t.into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .unwrap_or_default()
 }
 
 /// A module's weights as bytes (burnpack).

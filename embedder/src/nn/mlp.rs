@@ -30,7 +30,14 @@ impl MlpConfig {
             layers.push(seeded_linear(width, h, 2f32.sqrt(), true, rng, device));
             width = h;
         }
-        layers.push(seeded_linear(width, self.output, self.output_gain, true, rng, device));
+        layers.push(seeded_linear(
+            width,
+            self.output,
+            self.output_gain,
+            true,
+            rng,
+            device,
+        ));
         Mlp {
             layers,
             activation: Tanh::new(),

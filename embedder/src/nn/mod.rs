@@ -11,5 +11,5 @@ mod mlp;
 pub use clip::clip_global_grad_norm;
 pub use device::DeviceKind;
 pub use init::{linear_from_host, orthogonal, seeded_linear};
-pub use io::{from_bytes, into_bytes, tensor1, tensor2, to_vec, RecordError};
+pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};
 pub use mlp::{Mlp, MlpConfig};

@@ -7,7 +7,11 @@ use std::process::ExitCode;
 use clap::Parser;
 
 #[derive(Parser, Debug)]
-#[command(name = "jsae-learner", version, about = "JSAE-RL learner: PPO on embedded tuples, publishes policy snapshots")]
+#[command(
+    name = "jsae-learner",
+    version,
+    about = "JSAE-RL learner: PPO on embedded tuples, publishes policy snapshots"
+)]
 struct Cli {
     /// Address to listen on.
     #[arg(long, env = "JSAE_LISTEN")]
