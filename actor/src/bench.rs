@@ -22,10 +22,57 @@ pub struct DeviceBench {
     pub update_samples_per_s: f64,
     /// Milliseconds per PPO update of one batch.
     pub update_ms: f64,
-    /// Full `phi -> pi_i -> f` step for one state, microseconds.
+    /// Inference `phi -> pi_i (sample) -> f` for one state, microseconds.
+    pub infer_batch1_us: f64,
+    /// Inference `phi -> pi_i (sample) -> f` for 64 states, microseconds.
+    pub infer_batch64_us: f64,
+    /// A whole actor step of 1 environment (inference, env step, bookkeeping), microseconds.
     pub act_batch1_us: f64,
-    /// Full `phi -> pi_i -> f` step for 64 states, microseconds.
+    /// A whole actor step of 64 environments, microseconds.
     pub act_batch64_us: f64,
+}
+
+/// Times `phi -> pi_i -> f` on `batch` random states with the worker's current weights.
+fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: DeviceKind) -> f64 {
+    let (Some(embedding), Some(policy)) = (worker.embedding(), worker.policy()) else {
+        return f64::NAN;
+    };
+    let mut embedding = embedding.clone();
+    let policy = policy.for_inference(&device.device());
+    let n = match worker.state_space() {
+        jsae_proto::StateSpace::Categorical { sizes } => sizes[0] as u32,
+        jsae_proto::StateSpace::Real { .. } => 1,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let states = jsae_proto::StateBatch::Categorical {
+        factors: 1,
+        data: (0..batch).map(|_| rng.random_range(0..n)).collect(),
+    };
+    let head = policy.head().action_space();
+    let (mut x, mut logp) = (Vec::new(), Vec::new());
+    let mut e = jsae_proto::ActionBatch::empty(&head);
+    let mut a = jsae_proto::ActionBatch::empty(worker.action_space());
+    let mut once = |x: &mut Vec<f32>,
+                    logp: &mut Vec<f32>,
+                    e: &mut jsae_proto::ActionBatch,
+                    a: &mut jsae_proto::ActionBatch| {
+        e.clear();
+        a.clear();
+        logp.clear();
+        embedding.embed_states(&states, x);
+        policy.act(x, false, &mut rng, e, logp);
+        if let jsae_proto::ActionBatch::Continuous { data, .. } = &*e {
+            embedding.decode(data, a);
+        }
+    };
+    for _ in 0..10 {
+        once(&mut x, &mut logp, &mut e, &mut a);
+    }
+    let t = Instant::now();
+    for _ in 0..repeats {
+        once(&mut x, &mut logp, &mut e, &mut a);
+    }
+    t.elapsed().as_secs_f64() * 1e6 / repeats as f64
 }
 
 fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKind) -> ActorWorker {
@@ -62,6 +109,8 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
     config.embedding.pretrain_epochs = 2;
     let repeats = if quick { 200 } else { 2_000 };
     let mut w1 = trained_worker(&config, 1, device);
+    let infer_batch1_us = time_inference(&w1, 1, repeats, device);
+    let infer_batch64_us = time_inference(&w1, 64, repeats / 4, device);
     let act_batch1_us = time_collect(&mut w1, 1, repeats);
     let mut w64 = trained_worker(&config, 64, device);
     let act_batch64_us = time_collect(&mut w64, 64, repeats / 10);
@@ -105,6 +154,8 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
         device,
         update_samples_per_s: (batch * ppo.epochs) as f64 / update_s,
         update_ms: update_s * 1e3,
+        infer_batch1_us,
+        infer_batch64_us,
         act_batch1_us,
         act_batch64_us,
     }
@@ -127,6 +178,16 @@ pub fn run(quick: bool) -> String {
             nd.update_samples_per_s,
         ),
         ("PPO update (ms per batch)", flex.update_ms, nd.update_ms),
+        (
+            "inference, batch 1 (us)",
+            flex.infer_batch1_us,
+            nd.infer_batch1_us,
+        ),
+        (
+            "inference, batch 64 (us)",
+            flex.infer_batch64_us,
+            nd.infer_batch64_us,
+        ),
         ("act step, 1 env (us)", flex.act_batch1_us, nd.act_batch1_us),
         (
             "act step, 64 envs (us)",
@@ -137,6 +198,6 @@ pub fn run(quick: bool) -> String {
     for (name, f, n) in rows {
         out.push_str(&format!("{name:<34} {f:>12.1} {n:>12.1} {:>16.2}\n", n / f));
     }
-    out.push_str("(act step = phi, pi_i sample, nearest-neighbour f, env step and bookkeeping for every env)\n");
+    out.push_str("(inference = phi, pi_i sample, nearest-neighbour f; act step = that plus env steps and bookkeeping)\n");
     out
 }

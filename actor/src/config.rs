@@ -78,6 +78,30 @@ pub struct TrainConfig {
     /// PPO settings.
     #[serde(default)]
     pub ppo: PpoConfig,
+    /// Count-based exploration bonus (off by default).
+    #[serde(default)]
+    pub exploration: ExplorationConfig,
+}
+
+/// A count-based exploration bonus: the learner sees `r + bonus / sqrt(N(s'))`, where `N`
+/// counts this actor's visits to the next state (categorical states by index, real states
+/// binned). Environment returns, evaluation and the embedder's transitions are unchanged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExplorationConfig {
+    /// Bonus for a first visit (0 turns it off).
+    pub bonus: f64,
+    /// Bins per unit length for real-valued states.
+    pub bins_per_unit: f64,
+}
+
+impl Default for ExplorationConfig {
+    fn default() -> Self {
+        Self {
+            bonus: 0.0,
+            bins_per_unit: 40.0,
+        }
+    }
 }
 
 /// A partial configuration as read from a file: whatever it sets overrides the defaults.
@@ -112,6 +136,8 @@ pub struct ConfigFile {
     pub embedding: Option<toml::Value>,
     /// PPO settings (`[ppo]`).
     pub ppo: Option<toml::Value>,
+    /// Exploration bonus settings (`[exploration]`).
+    pub exploration: Option<toml::Value>,
 }
 
 /// Why a configuration was refused.
@@ -188,6 +214,13 @@ impl TrainConfig {
     pub fn defaults(env: EnvName, algo: Algo) -> Self {
         let mut embedding = EmbeddingConfig::default();
         let mut ppo = PpoConfig::default();
+        let mut exploration = ExplorationConfig::default();
+        if matches!(env, EnvName::Gridworld | EnvName::GridworldDiscrete) {
+            // Random play finds the goal around the solid L in a few % of episodes and the
+            // policy learns to avoid walls before it has: without this bonus 2 of 5 seeds
+            // found the goal at all in 500k steps; with it every seed tried did.
+            exploration.bonus = 0.1;
+        }
         if env == EnvName::Slotmachine {
             embedding.state_dim = 8;
             embedding.action_dim = 4;
@@ -213,6 +246,7 @@ impl TrainConfig {
             environment: EnvConfig::default(),
             embedding,
             ppo,
+            exploration,
         }
     }
 
@@ -252,6 +286,7 @@ impl TrainConfig {
         c.environment = overlay(&c.environment, parsed.environment, path)?;
         c.embedding = overlay(&c.embedding, parsed.embedding, path)?;
         c.ppo = overlay(&c.ppo, parsed.ppo, path)?;
+        c.exploration = overlay(&c.exploration, parsed.exploration, path)?;
         Ok(c)
     }
 
@@ -282,6 +317,10 @@ impl TrainConfig {
             return bad("separate service processes are not available yet: use one_process".into());
         }
         validate_env_config(&self.environment).map_err(ConfigError::Invalid)?;
+        let e = &self.exploration;
+        if !(e.bonus >= 0.0 && e.bonus.is_finite() && e.bins_per_unit > 0.0) {
+            return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
+        }
         self.ppo.validate().map_err(ConfigError::Invalid)?;
         if self.algo.uses_embedding() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;

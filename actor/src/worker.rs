@@ -81,6 +81,7 @@ pub struct ActorWorker {
     policy_version: Option<u64>,
     embedding: Option<Embedding>,
     running: Vec<Running>,
+    visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
     device: burn::tensor::Device,
@@ -126,6 +127,7 @@ impl ActorWorker {
             id,
             config: config.clone(),
             running: vec![Running::default(); envs.len()],
+            visits: std::collections::HashMap::new(),
             envs,
             env_rngs,
             rng: ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1)),
@@ -170,6 +172,11 @@ impl ActorWorker {
         self.policy_version
     }
 
+    /// The policy in use (None before the first policy snapshot).
+    pub fn policy(&self) -> Option<&Policy> {
+        self.policy_version.map(|_| &self.policy)
+    }
+
     /// The embedding in use.
     pub fn embedding(&self) -> Option<&Embedding> {
         self.embedding.as_ref()
@@ -210,6 +217,27 @@ impl ActorWorker {
         self.policy = policy;
         self.policy_version = Some(snapshot.version);
         Ok(())
+    }
+
+    /// The exploration bonus for reaching row `i` of `states` (0 when off).
+    fn exploration_bonus(&mut self, states: &StateBatch, i: usize) -> f32 {
+        let e = &self.config.exploration;
+        if e.bonus <= 0.0 {
+            return 0.0;
+        }
+        let mut key: u64 = 0xcbf2_9ce4_8422_2325;
+        let mut mix = |v: u64| key = (key ^ v).wrapping_mul(0x0100_0000_01b3);
+        match states {
+            StateBatch::Categorical { factors, data } => data[i * factors..(i + 1) * factors]
+                .iter()
+                .for_each(|&v| mix(u64::from(v))),
+            StateBatch::Real { dim, data } => data[i * dim..(i + 1) * dim]
+                .iter()
+                .for_each(|&v| mix((f64::from(v) * e.bins_per_unit).floor() as i64 as u64)),
+        }
+        let n = self.visits.entry(key).or_insert(0);
+        *n += 1;
+        (e.bonus / f64::from(*n).sqrt()) as f32
     }
 
     /// Whether actions come from the policy (else uniformly at random).
@@ -321,6 +349,11 @@ impl ActorWorker {
                     }
                 };
                 self.envs[i].push_state(&mut next);
+                let bonus = if acting {
+                    self.exploration_bonus(&next, i)
+                } else {
+                    0.0
+                };
                 let run = &mut self.running[i];
                 run.ret += step.reward;
                 run.len += 1;
@@ -355,7 +388,7 @@ impl ActorWorker {
                     f.x.extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
                     f.actions.push_row_of(&policy_actions, i);
                     f.logp.push(logp[i]);
-                    f.rewards.push(step.reward as f32);
+                    f.rewards.push(step.reward as f32 + bonus);
                     f.terminated.push(step.terminated);
                     f.truncated.push(step.truncated);
                 }
