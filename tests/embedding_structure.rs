@@ -4,7 +4,7 @@
 use jsae_actor::envs::EnvName;
 use jsae_actor::envs::gridworld::action_motions;
 use jsae_actor::{ActorWorker, Algo, TrainConfig};
-use jsae_embedder::nn::DeviceKind;
+use jsae_embedder::nn::{BurnDevice, DeviceKind};
 use jsae_embedder::{EmbedderTrainer, Embedding};
 
 /// Mean motion distance from each action to its `k` nearest neighbours in E, and to all

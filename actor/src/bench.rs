@@ -4,14 +4,16 @@
 use std::time::Instant;
 
 use jsae_embedder::EmbedderTrainer;
-use jsae_embedder::nn::DeviceKind;
+use jsae_embedder::nn::{BurnDevice, DeviceKind};
 use jsae_learner::{Ingested, Learner};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::{Algo, TrainConfig};
 use crate::envs::EnvName;
-use crate::worker::{ActorWorker, policy_shape};
+use jsae_learner::policy_shape;
+use jsae_proto::settings::{Algo, TrainConfig};
+
+use crate::worker::ActorWorker;
 
 /// Measurements on one device.
 #[derive(Debug, Clone, Copy, PartialEq)]

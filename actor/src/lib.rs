@@ -9,13 +9,15 @@
 #![forbid(unsafe_code)]
 
 pub mod bench;
-pub mod config;
+pub mod bench_transport;
 pub mod envs;
+pub mod launch;
 pub mod plot;
 pub mod progress;
+pub mod service;
 pub mod train;
 pub mod worker;
 
-pub use config::{Algo, ConfigError, TrainConfig};
+pub use jsae_proto::settings::{Algo, ConfigError, TrainConfig};
 pub use train::{RunOutcome, TrainError, train_one_process};
 pub use worker::{ActorWorker, Rollout};

@@ -7,8 +7,8 @@ use std::path::{Path, PathBuf};
 
 use jsae_embedder::Embedding;
 
-use crate::config::TrainConfig;
 use crate::envs::{EnvName, gridworld::action_motions};
+use jsae_proto::settings::TrainConfig;
 
 const W: f64 = 640.0;
 const H: f64 = 400.0;

@@ -56,6 +56,19 @@ impl Progress {
         }
     }
 
+    /// Progress read from outside (the run directory of separate processes).
+    pub fn position(&mut self, env_steps: u64, ret: Option<f64>, success: Option<f64>) {
+        let ret = ret.map_or("-".into(), |r| format!("{r:.3}"));
+        let success = success.map_or(String::new(), |s| format!(" success {s:.2}"));
+        if let Some(bar) = &self.bar {
+            bar.set_position(env_steps.min(self.total));
+            bar.set_message(format!("return {ret}{success}"));
+        } else if self.total > 0 && env_steps.saturating_sub(self.last_logged) >= self.total / 20 {
+            self.last_logged = env_steps;
+            tracing::info!("env_steps {env_steps}/{} return {ret}{success}", self.total);
+        }
+    }
+
     /// A message (pre-training done, evaluation started).
     pub fn note(&self, message: &str) {
         match &self.bar {

@@ -10,17 +10,19 @@ use jsae_embedder::EmbedderTrainer;
 use jsae_learner::{Ingested, Learner, MetricsWriter, RunMeta, Summary};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 
-use crate::config::TrainConfig;
 use crate::plot;
 use crate::progress::Progress;
-use crate::worker::{ActorWorker, WorkerError, policy_shape};
+use jsae_learner::policy_shape;
+use jsae_proto::settings::TrainConfig;
+
+use crate::worker::{ActorWorker, WorkerError};
 
 /// Why a run failed.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError {
     /// Invalid configuration.
     #[error(transparent)]
-    Config(#[from] crate::config::ConfigError),
+    Config(#[from] jsae_proto::settings::ConfigError),
     /// The run directory could not be written.
     #[error("run directory {path}: {source}")]
     Io {
@@ -35,6 +37,9 @@ pub enum TrainError {
     /// An embedding or policy snapshot could not be applied.
     #[error("actor: {0}")]
     Worker(#[from] WorkerError),
+    /// A service process failed.
+    #[error("{0}")]
+    Service(String),
     /// The embedder refused a transition batch.
     #[error("embedder: {0}")]
     Embedder(String),

@@ -4,8 +4,8 @@
 //! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
 
 use jsae_embedder::Embedding;
-use jsae_embedder::nn::DeviceKind;
-use jsae_learner::{Policy, PolicyHead};
+use jsae_embedder::nn::{BurnDevice, DeviceKind};
+use jsae_learner::{Policy, policy_shape};
 use jsae_proto::{
     ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
     RolloutFragment, StateBatch, StateSpace, TransitionBatch,
@@ -13,8 +13,8 @@ use jsae_proto::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::config::{Algo, TrainConfig};
 use crate::envs::{ActionRef, Env, make_env};
+use jsae_proto::settings::TrainConfig;
 
 /// Why a snapshot could not be applied.
 #[derive(Debug, thiserror::Error)]
@@ -36,29 +36,6 @@ pub struct Rollout {
     pub transitions: TransitionBatch,
     /// One fragment per environment (empty while acting at random).
     pub fragments: Vec<RolloutFragment>,
-}
-
-/// The policy input width and head for a run.
-pub fn policy_shape(
-    config: &TrainConfig,
-    states: &StateSpace,
-    actions: &ActionSpace,
-) -> (usize, PolicyHead) {
-    match config.algo {
-        Algo::Jsae | Algo::Ae | Algo::Ra => (
-            config.embedding.state_dim,
-            PolicyHead::Gaussian {
-                dim: config.embedding.action_dim,
-            },
-        ),
-        Algo::Ppo => (
-            states.feature_len(),
-            match actions {
-                ActionSpace::Discrete { n } => PolicyHead::Categorical { n: *n },
-                ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
-            },
-        ),
-    }
 }
 
 /// Per-environment episode bookkeeping.

@@ -65,4 +65,39 @@ fn a_short_run_prints_its_summary() {
         "{stdout}"
     );
     assert!(dir.join("summary.json").exists() && dir.join("learning_curve.svg").exists());
+    // separate processes by default: each left its log
+    for name in ["embedder", "learner", "actor-0"] {
+        let log = dir.join("logs").join(format!("{name}.log"));
+        assert!(log.exists(), "{}", log.display());
+    }
+    let learner_log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap_or_default();
+    assert!(
+        learner_log.contains("listening on 127.0.0.1:"),
+        "{learner_log}"
+    );
+}
+
+#[test]
+fn the_services_answer_help_and_refuse_bad_input_with_exit_2() {
+    for service in ["embedder", "learner", "actor"] {
+        let help = jsae(&[service, "--help"]);
+        assert!(help.status.success(), "{service}");
+        assert!(String::from_utf8_lossy(&help.stdout).contains("--env"));
+        let bad = jsae(&[service, "--env", "nowhere"]);
+        assert_eq!(bad.status.code(), Some(2), "{service}");
+    }
+    let actor = Command::new(env!("CARGO_BIN_EXE_jsae-actor"))
+        .args([
+            "--learner",
+            "http://127.0.0.1:9",
+            "--env",
+            "gridworld",
+            "--seed",
+            "1",
+        ])
+        .output()
+        .expect("jsae-actor runs");
+    assert_eq!(actor.status.code(), Some(2), "jsae needs --embedder");
+    let reason = String::from_utf8_lossy(&actor.stderr);
+    assert!(reason.contains("--embedder"), "{reason}");
 }

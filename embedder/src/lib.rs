@@ -12,16 +12,16 @@
 
 #![forbid(unsafe_code)]
 
-mod config;
 mod embedding;
 mod model;
 mod nearest;
 pub mod nn;
 pub mod replay;
+pub mod service;
 mod trainer;
 
-pub use config::EmbeddingConfig;
 pub use embedding::Embedding;
+pub use jsae_proto::settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
 pub use trainer::{EmbedderStats, EmbedderTrainer};

@@ -27,7 +27,9 @@ pub struct EmbeddingNet {
     g_table: Option<Param<Tensor<2>>>,
     /// g for continuous actions: `[dim -> d]`, no bias.
     g_linear: Option<Linear>,
-    /// T: `[m + d -> logits over next states | next state]`.
+    /// T's hidden layer (tanh), when `transition_hidden > 0`.
+    transition_in: Option<Linear>,
+    /// T: `[m + d (or the hidden width) -> logits over next states | next state]`.
     transition: Linear,
     /// f for continuous actions: `E -> A`, one hidden layer.
     decoder: Option<Mlp>,
@@ -102,7 +104,11 @@ impl EmbeddingModel {
                 )
             }
         };
-        let transition = uniform_linear(m + d, states.feature_len(), true, rng, device);
+        let (transition_in, t_in) = match config.transition_hidden {
+            0 => (None, m + d),
+            h => (Some(uniform_linear(m + d, h, true, rng, device)), h),
+        };
+        let transition = uniform_linear(t_in, states.feature_len(), true, rng, device);
         let offsets = match states {
             StateSpace::Categorical { sizes } => sizes
                 .iter()
@@ -120,6 +126,7 @@ impl EmbeddingModel {
                 phi_linear,
                 g_table,
                 g_linear,
+                transition_in,
                 transition,
                 decoder,
             },
@@ -255,7 +262,12 @@ impl EmbeddingModel {
 
     /// T: next-state logits (categorical) or prediction (real), `[batch, feature_len]`.
     pub fn predict_next(&self, x: Tensor<2>, e: Tensor<2>) -> Tensor<2> {
-        self.net.transition.forward(Tensor::cat(vec![x, e], 1))
+        let input = Tensor::cat(vec![x, e], 1);
+        let input = match &self.net.transition_in {
+            Some(hidden) => hidden.forward(input).tanh(),
+            None => input,
+        };
+        self.net.transition.forward(input)
     }
 
     /// f for continuous actions: `[batch, d] -> [batch, action dim]` (None for discrete).

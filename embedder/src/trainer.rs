@@ -9,7 +9,7 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::{self, DeviceKind};
+use crate::nn::{self, BurnDevice, DeviceKind};
 use crate::replay::Replay;
 use crate::{EmbeddingConfig, EmbeddingModel};
 

@@ -12,15 +12,15 @@
 
 #![forbid(unsafe_code)]
 
-mod config;
 pub mod gae;
 pub mod normalise;
 mod policy;
 mod ppo;
 mod record;
+pub mod service;
 
-pub use config::PpoConfig;
-pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet};
+pub use jsae_proto::settings::PpoConfig;
+pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };

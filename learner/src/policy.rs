@@ -308,3 +308,28 @@ impl Policy {
         }
     }
 }
+
+/// The policy input width and head for a run.
+pub fn policy_shape(
+    config: &jsae_proto::settings::TrainConfig,
+    states: &jsae_proto::StateSpace,
+    actions: &ActionSpace,
+) -> (usize, PolicyHead) {
+    match config.algo {
+        jsae_proto::settings::Algo::Jsae
+        | jsae_proto::settings::Algo::Ae
+        | jsae_proto::settings::Algo::Ra => (
+            config.embedding.state_dim,
+            PolicyHead::Gaussian {
+                dim: config.embedding.action_dim,
+            },
+        ),
+        jsae_proto::settings::Algo::Ppo => (
+            states.feature_len(),
+            match actions {
+                ActionSpace::Discrete { n } => PolicyHead::Categorical { n: *n },
+                ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
+            },
+        ),
+    }
+}

@@ -12,7 +12,7 @@ use std::collections::HashMap;
 
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
 use burn::tensor::{Device, Tensor};
-use jsae_embedder::nn::{self, DeviceKind, RecordError};
+use jsae_embedder::nn::{self, BurnDevice, DeviceKind, RecordError};
 use jsae_proto::{ActionBatch, EpisodeStat, PolicySnapshot, RolloutFragment, ValidationError};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -241,6 +241,14 @@ impl Learner {
                 .for_inference(&self.inference_device)
                 .to_bytes()?,
         })
+    }
+
+    /// Continues from a saved policy (a restarted learner): loads the weights and takes its
+    /// version, so actors' versions stay meaningful. The optimiser state starts afresh.
+    pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
+        self.policy.load_bytes(&snapshot.bytes)?;
+        self.version = snapshot.version;
+        Ok(())
     }
 
     /// Records an actor's step count (also carried by fragments).

@@ -6,7 +6,7 @@ use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
 use jsae_proto::EvalReport;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::UpdateMetrics;
 
@@ -55,6 +55,19 @@ impl MetricsWriter {
         writeln!(out, "{}", COLUMNS.join(","))?;
         out.flush()?;
         Ok(Self { out, path })
+    }
+
+    /// Opens `dir/metrics.csv` to add rows (a resumed learner), or creates it.
+    pub fn append(dir: &Path) -> std::io::Result<Self> {
+        let path = dir.join("metrics.csv");
+        if !path.exists() {
+            return Self::create(dir);
+        }
+        let file = std::fs::OpenOptions::new().append(true).open(&path)?;
+        Ok(Self {
+            out: BufWriter::new(file),
+            path,
+        })
     }
 
     /// The file's path.
@@ -114,7 +127,7 @@ pub struct RunMeta {
 }
 
 /// `summary.json`, as CONTRACT.md specifies (and a few more fields).
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Summary {
     /// Environment name.
     pub env: String,

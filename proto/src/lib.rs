@@ -7,14 +7,22 @@
 //! as plain values; the gRPC transport wraps the same types (`proto/jsae.proto`).
 //!
 //! Layout: `spaces` (state and action spaces), `batch` (flat state and action storage),
-//! `messages` (the messages), `validate` (checks every receiver runs on input).
+//! `messages` (the messages), `validate` (checks every receiver runs on input), `settings`
+//! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
+//! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
+//! health, reflection, shutdown signals, backoff) and `client` (following snapshot streams
+//! with reconnection).
 
 #![forbid(unsafe_code)]
 
 mod batch;
+pub mod client;
 mod messages;
+pub mod net;
+pub mod settings;
 mod spaces;
 mod validate;
+pub mod wire;
 
 pub use batch::{ActionBatch, StateBatch};
 pub use messages::{

@@ -33,6 +33,28 @@ pub enum ValidationError {
         /// The exclusive upper bound.
         limit: usize,
     },
+    /// A required part of a message is absent.
+    #[error("{field}: missing")]
+    Missing {
+        /// The field.
+        field: &'static str,
+    },
+    /// A message or field is larger than allowed.
+    #[error("{field}: {got} bytes, at most {limit}")]
+    TooLarge {
+        /// The field.
+        field: &'static str,
+        /// The limit.
+        limit: usize,
+        /// The size it has.
+        got: usize,
+    },
+    /// Chunks arrived out of order or do not add up.
+    #[error("{field}: chunks out of sequence")]
+    Sequence {
+        /// The field.
+        field: &'static str,
+    },
     /// The kind of a state or action batch does not match the space.
     #[error("{field}: kind does not match the environment's space")]
     Kind {

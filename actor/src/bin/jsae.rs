@@ -1,11 +1,16 @@
-//! `jsae`: the launcher and tools. `jsae train` runs a whole training on this machine and
-//! prints its summary; `jsae bench` measures PPO updates and inference on both devices.
+//! `jsae`: the launcher and tools. `jsae train` runs a whole training on this machine (the
+//! embedder, the learner and the actors as separate processes on loopback, or in one process
+//! with `--one-process`) and prints its summary; `jsae bench` measures PPO updates and
+//! inference on both devices. `jsae embedder|learner|actor` are the services themselves (the
+//! same as the `jsae-embedder`, `jsae-learner` and `jsae-actor` binaries), which is how
+//! `jsae train` starts them.
 
 use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand};
 use jsae_actor::envs::EnvName;
+use jsae_actor::launch;
 use jsae_actor::progress::Progress;
 use jsae_actor::{Algo, TrainConfig, train_one_process};
 use jsae_embedder::nn::DeviceKind;
@@ -21,12 +26,22 @@ struct Cli {
 enum Command {
     /// Train on this machine (embedder, learner and actors) and print the summary.
     Train(TrainArgs),
-    /// Measure PPO update throughput and inference latency on both burn devices.
+    /// Measure PPO update throughput and inference latency on both burn devices, and the
+    /// services' ingest rates over loopback gRPC against in-process channels.
     Bench {
         /// Fewer repetitions (a smoke run).
         #[arg(long)]
         quick: bool,
+        /// Only the transport measurements.
+        #[arg(long)]
+        transport: bool,
     },
+    /// The embedder service (as `jsae-embedder`).
+    Embedder(jsae_embedder::service::EmbedderArgs),
+    /// The learner service (as `jsae-learner`).
+    Learner(jsae_learner::service::LearnerArgs),
+    /// An actor (as `jsae-actor`).
+    Actor(jsae_actor::service::ActorArgs),
 }
 
 #[derive(Args, Debug)]
@@ -61,8 +76,8 @@ struct TrainArgs {
     /// Deterministic evaluation episodes at the end [default: 20].
     #[arg(long, env = "JSAE_EVAL_EPISODES")]
     eval_episodes: Option<usize>,
-    /// Run every component in this process, in lockstep (the only mode until the gRPC
-    /// services exist; deterministic for a seed).
+    /// Run every component in this process, in lockstep (deterministic for a seed) instead
+    /// of as separate service processes talking gRPC over loopback.
     #[arg(long)]
     one_process: bool,
     /// No progress output.
@@ -79,7 +94,7 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
     c.envs_per_actor = a.envs.unwrap_or(c.envs_per_actor);
     c.device = a.device.unwrap_or(c.device);
     c.eval_episodes = a.eval_episodes.unwrap_or(c.eval_episodes);
-    c.one_process = true;
+    c.one_process |= a.one_process;
     if let Some(out) = &a.out {
         c.out = out.clone();
     }
@@ -96,14 +111,14 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
 }
 
 fn main() -> ExitCode {
-    tracing_subscriber::fmt()
-        .with_env_filter(
-            tracing_subscriber::EnvFilter::try_from_default_env()
-                .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info")),
-        )
-        .with_writer(std::io::stderr)
-        .init();
     let cli = Cli::parse();
+    match cli.command {
+        Command::Embedder(args) => return jsae_embedder::service::main(args),
+        Command::Learner(args) => return jsae_learner::service::main(args),
+        Command::Actor(args) => return jsae_actor::service::main(args),
+        _ => {}
+    }
+    jsae_proto::net::init_logging();
     match cli.command {
         Command::Train(args) => {
             let config = match build_config(&args) {
@@ -114,7 +129,13 @@ fn main() -> ExitCode {
                 }
             };
             let mut progress = Progress::new(config.env_steps, args.quiet);
-            match train_one_process(&config, &mut progress) {
+            let outcome = if config.one_process {
+                train_one_process(&config, &mut progress)
+            } else {
+                launch::current_exe()
+                    .and_then(|exe| launch::train_processes(&config, &exe, &mut progress))
+            };
+            match outcome {
                 Ok(outcome) => {
                     let json = serde_json::to_string_pretty(&outcome.summary).unwrap_or_default();
                     println!("{json}");
@@ -130,9 +151,13 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Command::Bench { quick } => {
-            print!("{}", jsae_actor::bench::run(quick));
+        Command::Bench { quick, transport } => {
+            if !transport {
+                print!("{}", jsae_actor::bench::run(quick));
+            }
+            print!("{}", jsae_actor::bench_transport::run(quick));
             ExitCode::SUCCESS
         }
+        Command::Embedder(_) | Command::Learner(_) | Command::Actor(_) => ExitCode::SUCCESS,
     }
 }

@@ -10,9 +10,9 @@
 //! `goal_reward` when a sub-step's segment touches the goal (the episode terminates there).
 //! The time limit `max_steps` truncates.
 
+use jsae_proto::settings::GridworldConfig;
 use jsae_proto::{ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
 use super::geometry::Rect;
 use super::{ActionRef, Env, Step};
@@ -25,43 +25,6 @@ const WALLS: [Rect; 2] = [
 /// The goal region.
 const GOAL: Rect = Rect::new(0.125, 0.175, 0.625, 0.675);
 const START: [f64; 2] = [0.3, 0.1];
-
-/// Gridworld settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct GridworldConfig {
-    /// Number of actuators `n`; there are `2^n` actions.
-    pub actuators: u32,
-    /// Time limit in steps.
-    pub max_steps: u32,
-    /// Bins per axis of the discrete variant.
-    pub bins: u32,
-    /// Sub-steps per step.
-    pub substeps: u32,
-    /// Length of a sub-step for a motion of norm 1.
-    pub substep_len: f64,
-    /// Reward of every step.
-    pub step_reward: f64,
-    /// Extra reward of a step that collides.
-    pub collision_reward: f64,
-    /// Extra reward of the step that reaches the goal.
-    pub goal_reward: f64,
-}
-
-impl Default for GridworldConfig {
-    fn default() -> Self {
-        Self {
-            actuators: 9,
-            max_steps: 150,
-            bins: 40,
-            substeps: 4,
-            substep_len: 0.045,
-            step_reward: -0.01,
-            collision_reward: -0.05,
-            goal_reward: 1.0,
-        }
-    }
-}
 
 /// Motion of every action: `[2^n]` displacements, the longest of norm 1.
 pub fn action_motions(actuators: u32) -> Vec<[f64; 2]> {

@@ -8,10 +8,12 @@ pub mod slotmachine;
 
 use jsae_proto::{ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
-pub use gridworld::{Gridworld, GridworldConfig};
-pub use slotmachine::{Slotmachine, SlotmachineConfig};
+pub use gridworld::Gridworld;
+pub use jsae_proto::settings::{
+    EnvConfig, EnvName, GridworldConfig, SlotmachineConfig, validate_env_config,
+};
+pub use slotmachine::Slotmachine;
 
 /// An action handed to an environment.
 #[derive(Debug, Clone, Copy)]
@@ -52,39 +54,6 @@ pub trait Env: Send {
     fn push_state(&self, out: &mut StateBatch);
 }
 
-/// The environments `jsae train --env` accepts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "kebab-case")]
-pub enum EnvName {
-    /// Gridworld with the continuous (x, y) state.
-    Gridworld,
-    /// Gridworld with the coordinate binned into a 40x40 one-hot.
-    GridworldDiscrete,
-    /// Four reels, bins^4 actions.
-    Slotmachine,
-}
-
-impl EnvName {
-    /// The name as written on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Gridworld => "gridworld",
-            Self::GridworldDiscrete => "gridworld-discrete",
-            Self::Slotmachine => "slotmachine",
-        }
-    }
-}
-
-/// Settings of every environment; `jsae train` uses the part its `--env` names.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, Default)]
-#[serde(default, deny_unknown_fields)]
-pub struct EnvConfig {
-    /// Both gridworld variants.
-    pub gridworld: GridworldConfig,
-    /// The slotmachine.
-    pub slotmachine: SlotmachineConfig,
-}
-
 /// Builds the named environment.
 pub fn make_env(name: EnvName, config: &EnvConfig) -> Box<dyn Env> {
     match name {
@@ -94,27 +63,29 @@ pub fn make_env(name: EnvName, config: &EnvConfig) -> Box<dyn Env> {
     }
 }
 
-/// Checks settings that would make an environment meaningless.
-pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
-    let g = &config.gridworld;
-    if !(1..=16).contains(&g.actuators) {
-        return Err(format!(
-            "gridworld.actuators must be in 1..=16, got {}",
-            g.actuators
-        ));
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_settings_give_the_spaces_the_environments_have() {
+        let mut config = EnvConfig::default();
+        config.gridworld.actuators = 5;
+        config.gridworld.bins = 7;
+        config.slotmachine.bins = 3;
+        for name in [
+            EnvName::Gridworld,
+            EnvName::GridworldDiscrete,
+            EnvName::Slotmachine,
+        ] {
+            let env = make_env(name, &config);
+            let (states, actions) = name.spaces(&config);
+            assert_eq!(
+                (&states, &actions),
+                (env.state_space(), env.action_space()),
+                "{}",
+                name.as_str()
+            );
+        }
     }
-    if g.max_steps == 0 || g.bins == 0 {
-        return Err("gridworld.max_steps and gridworld.bins must be positive".into());
-    }
-    let s = &config.slotmachine;
-    if !(1..=16).contains(&s.bins) {
-        return Err(format!(
-            "slotmachine.bins must be in 1..=16, got {}",
-            s.bins
-        ));
-    }
-    if !(1..=4).contains(&s.threshold) || s.horizon == 0 {
-        return Err("slotmachine.threshold must be in 1..=4 and horizon positive".into());
-    }
-    Ok(())
 }

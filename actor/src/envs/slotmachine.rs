@@ -7,10 +7,10 @@
 //! least `threshold` reels, count x value. Reels start at random positions; the episode is
 //! truncated after `horizon` steps.
 
+use jsae_proto::settings::SlotmachineConfig;
 use jsae_proto::{ActionSpace, StateBatch, StateSpace};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
-use serde::{Deserialize, Serialize};
 
 use super::{ActionRef, Env, Step};
 
@@ -22,28 +22,6 @@ pub const REELS: [[u32; 6]; 4] = [
     [5, 1, 4, 2, 6, 0],
 ];
 const FACES: u32 = 6;
-
-/// Slotmachine settings.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default, deny_unknown_fields)]
-pub struct SlotmachineConfig {
-    /// Fractions of a turn per reel; there are `bins^4` actions.
-    pub bins: u32,
-    /// A value pays when it shows on at least this many reels.
-    pub threshold: u32,
-    /// Steps per episode.
-    pub horizon: u32,
-}
-
-impl Default for SlotmachineConfig {
-    fn default() -> Self {
-        Self {
-            bins: 8,
-            threshold: 2,
-            horizon: 20,
-        }
-    }
-}
 
 /// The slotmachine.
 #[derive(Debug, Clone)]

@@ -9,7 +9,7 @@ mod io;
 mod mlp;
 
 pub use clip::clip_global_grad_norm;
-pub use device::DeviceKind;
+pub use device::{BurnDevice, DeviceKind};
 pub use init::{linear_from_host, orthogonal, seeded_linear};
 pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};
 pub use mlp::{Mlp, MlpConfig};

@@ -4,12 +4,10 @@
 
 use std::path::{Path, PathBuf};
 
-use jsae_embedder::EmbeddingConfig;
-use jsae_embedder::nn::DeviceKind;
-use jsae_learner::PpoConfig;
 use serde::{Deserialize, Serialize};
 
-use crate::envs::{EnvConfig, EnvName, validate_env_config};
+use super::{DeviceKind, EmbeddingConfig, EnvConfig, EnvName, PpoConfig, validate_env_config};
+use crate::{ActionSpace, StateSpace};
 
 /// The algorithms `jsae train --algo` names.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -60,6 +58,13 @@ pub struct TrainConfig {
     pub envs_per_actor: usize,
     /// Steps per environment per rollout fragment.
     pub rollout_len: usize,
+    /// Separate processes: rollouts an actor may send under one policy version before it
+    /// waits for a newer one (1: on-policy like the one-process mode, policy lag 0 with one
+    /// actor; 2: the next rollout is collected while the learner updates, lag up to 1).
+    pub rollouts_per_policy: usize,
+    /// Separate processes: how long an actor waits for a newer policy before it collects
+    /// anyway (so a run goes on when another actor that the learner's batch counted on died).
+    pub policy_wait_ms: u64,
     /// burn device.
     pub device: DeviceKind,
     /// Deterministic evaluation episodes at the end.
@@ -67,7 +72,7 @@ pub struct TrainConfig {
     /// Run directory.
     pub out: PathBuf,
     /// Run actor, embedder and learner in this process, in lockstep (deterministic for a
-    /// seed). Separate processes arrive with the gRPC services.
+    /// seed), instead of as separate service processes talking gRPC over loopback.
     pub one_process: bool,
     /// Environment settings.
     #[serde(default)]
@@ -122,6 +127,10 @@ pub struct ConfigFile {
     pub envs_per_actor: Option<usize>,
     /// See [`TrainConfig`].
     pub rollout_len: Option<usize>,
+    /// See [`TrainConfig`].
+    pub rollouts_per_policy: Option<usize>,
+    /// See [`TrainConfig`].
+    pub policy_wait_ms: Option<u64>,
     /// See [`TrainConfig`].
     pub device: Option<DeviceKind>,
     /// See [`TrainConfig`].
@@ -239,10 +248,12 @@ impl TrainConfig {
             actors: 1,
             envs_per_actor: 16,
             rollout_len: 128,
+            rollouts_per_policy: 1,
+            policy_wait_ms: 3000,
             device: DeviceKind::Flex,
             eval_episodes: 20,
             out: PathBuf::new(),
-            one_process: true,
+            one_process: false,
             environment: EnvConfig::default(),
             embedding,
             ppo,
@@ -279,6 +290,8 @@ impl TrainConfig {
         c.actors = parsed.actors.unwrap_or(c.actors);
         c.envs_per_actor = parsed.envs_per_actor.unwrap_or(c.envs_per_actor);
         c.rollout_len = parsed.rollout_len.unwrap_or(c.rollout_len);
+        c.rollouts_per_policy = parsed.rollouts_per_policy.unwrap_or(c.rollouts_per_policy);
+        c.policy_wait_ms = parsed.policy_wait_ms.unwrap_or(c.policy_wait_ms);
         c.device = parsed.device.unwrap_or(c.device);
         c.eval_episodes = parsed.eval_episodes.unwrap_or(c.eval_episodes);
         c.out = parsed.out.unwrap_or(c.out);
@@ -288,6 +301,34 @@ impl TrainConfig {
         c.ppo = overlay(&c.ppo, parsed.ppo, path)?;
         c.exploration = overlay(&c.exploration, parsed.exploration, path)?;
         Ok(c)
+    }
+
+    /// The configuration a service process runs with: `file` over the defaults for `env` and
+    /// `algo`, and `seed` over both.
+    pub fn for_service(
+        env: EnvName,
+        algo: Algo,
+        seed: u64,
+        file: Option<&Path>,
+    ) -> Result<Self, ConfigError> {
+        let mut c = Self::from_layers(Some(env), Some(algo), file)?;
+        if c.env != env || c.algo != algo {
+            return Err(ConfigError::Invalid(format!(
+                "the settings file names --env {} --algo {}, the command line --env {} --algo {}",
+                c.env.as_str(),
+                c.algo.as_str(),
+                env.as_str(),
+                algo.as_str()
+            )));
+        }
+        c.seed = seed;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// The environment's state and action spaces under these settings.
+    pub fn spaces(&self) -> (StateSpace, ActionSpace) {
+        self.env.spaces(&self.environment)
     }
 
     /// Env steps per rollout round of all actors (the learner's batch).
@@ -304,17 +345,21 @@ impl TrainConfig {
                 self.algo.as_str()
             ));
         }
-        if self.actors == 0 || self.envs_per_actor == 0 || self.rollout_len == 0 {
-            return bad("actors, envs_per_actor and rollout_len must be positive".into());
+        if self.actors == 0
+            || self.envs_per_actor == 0
+            || self.rollout_len == 0
+            || self.rollouts_per_policy == 0
+        {
+            return bad(
+                "actors, envs_per_actor, rollout_len and rollouts_per_policy must be positive"
+                    .into(),
+            );
         }
         if self.env_steps == 0 {
             return bad("env_steps must be positive".into());
         }
         if self.eval_episodes == 0 {
             return bad("eval_episodes must be positive".into());
-        }
-        if !self.one_process {
-            return bad("separate service processes are not available yet: use one_process".into());
         }
         validate_env_config(&self.environment).map_err(ConfigError::Invalid)?;
         let e = &self.exploration;

@@ -27,6 +27,10 @@ pub struct EmbeddingConfig {
     pub pretrain_transitions: usize,
     /// Passes over the pre-training transitions.
     pub pretrain_epochs: usize,
+    /// Hidden width of a tanh layer in T (0: T is one linear layer on `concat(x, e)`, as in the
+    /// paper's gridworld; the slotmachine's next reel position is `position + advance mod 6`,
+    /// which no linear function of the two embeddings can express).
+    pub transition_hidden: usize,
     /// Hidden width of the continuous-action decoder f.
     pub decoder_hidden: usize,
     /// Transitions the replay buffer keeps (oldest dropped first).
@@ -50,6 +54,7 @@ impl Default for EmbeddingConfig {
             batch_size: 512,
             pretrain_transitions: 20_000,
             pretrain_epochs: 30,
+            transition_hidden: 0,
             decoder_hidden: 64,
             replay_capacity: 200_000,
             update_every: 20_480,

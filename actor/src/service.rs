@@ -1,0 +1,469 @@
+//! The actor process: an [`ActorWorker`] stepping its environments on a blocking thread,
+//! fed by two snapshot streams (embedder and learner) and feeding two client streams
+//! (raw transitions to the embedder, embedded fragments to the learner).
+//!
+//! - Weights are swapped between rollouts, whole, to the newest version received.
+//! - Until a policy exists it waits; until an embedding exists (JSAE) it acts at random.
+//! - Every connection is retried with backoff: a service that goes away and comes back is
+//!   rejoined without restarting the actor. A message in hand when a stream broke is sent
+//!   again on the next one; one the service refused as malformed is dropped and logged.
+//! - Backpressure: when a service is behind or away the queues fill and stepping waits.
+//! - The learner's evaluation request is answered with deterministic episodes; its finish
+//!   event ends the process with exit 0, as SIGINT/SIGTERM do.
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use jsae_proto::client::{self, PolicyEvent};
+use jsae_proto::net::{self, Backoff};
+use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
+use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use tokio::sync::{mpsc, watch};
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::Code;
+
+use crate::worker::ActorWorker;
+
+/// How an actor run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ActorExit {
+    /// The learner ended the run.
+    Finished,
+    /// Stopped from outside (signal, or the caller's stop future).
+    Stopped,
+}
+
+/// What an actor did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ActorReport {
+    /// How it ended.
+    pub exit: ActorExit,
+    /// Env steps taken.
+    pub env_steps: u64,
+    /// Rollout fragments queued for the learner.
+    pub fragments: u64,
+    /// Every policy version applied, in order.
+    pub policy_versions: Vec<u64>,
+    /// Every embedding version applied, in order.
+    pub embedding_versions: Vec<u64>,
+}
+
+/// Where the actor connects, and who it is.
+#[derive(Debug, Clone)]
+pub struct ActorOptions {
+    /// This actor's id (distinct per actor: it seeds the environments and keys the learner's
+    /// step count).
+    pub id: u64,
+    /// Embedder URL (JSAE).
+    pub embedder: Option<String>,
+    /// Learner URL.
+    pub learner: String,
+}
+
+enum Control {
+    Evaluate(pb::EvalRequest),
+    Finish,
+}
+
+/// A client stream that survives its server: messages from `queue` are sent on one
+/// long-lived call, re-opened with backoff whenever it ends.
+async fn push_forever<M, F, Fut>(name: &'static str, mut queue: mpsc::Receiver<M>, mut open: F)
+where
+    M: Send + 'static,
+    F: FnMut(ReceiverStream<M>) -> Fut,
+    Fut: Future<Output = Result<pb::PushSummary, tonic::Status>> + Send + 'static,
+{
+    let mut backoff = Backoff::default();
+    let mut held: Option<M> = None;
+    loop {
+        let (tx, rx) = mpsc::channel::<M>(1);
+        let call = tokio::spawn(open(ReceiverStream::new(rx)));
+        let mut sent_any = false;
+        let ended = loop {
+            let msg = match held.take() {
+                Some(m) => m,
+                None => match queue.recv().await {
+                    Some(m) => m,
+                    None => {
+                        drop(tx);
+                        let _ = call.await;
+                        return;
+                    }
+                },
+            };
+            if let Err(back) = tx.send(msg).await {
+                held = Some(back.0);
+                break call.await;
+            }
+            if !sent_any {
+                sent_any = true;
+                backoff.reset();
+            }
+        };
+        match ended {
+            Ok(Err(status)) if status.code() == Code::InvalidArgument => {
+                tracing::error!("{name}: a message was refused: {}", status.message());
+                held = None;
+            }
+            Ok(Err(status)) if status.code() == Code::ResourceExhausted => {
+                tracing::error!("{name}: a message was too large: {}", status.message());
+                held = None;
+            }
+            Ok(Err(status)) => {
+                tracing::debug!("{name}: {} ({:?})", status.message(), status.code());
+            }
+            Ok(Ok(_)) => {}
+            Err(e) => tracing::warn!("{name}: {e}"),
+        }
+        tokio::time::sleep(backoff.next_delay()).await;
+    }
+}
+
+/// The stepping thread's ends of the channels to the async side.
+struct Links {
+    embedding: watch::Receiver<Option<Arc<EmbeddingSnapshot>>>,
+    policy: watch::Receiver<Option<Arc<PolicySnapshot>>>,
+    control: std::sync::mpsc::Receiver<Control>,
+    transitions: mpsc::Sender<pb::TransitionBatch>,
+    fragments: mpsc::Sender<pb::RolloutFragment>,
+    reports: mpsc::Sender<pb::EvalReport>,
+}
+
+fn stepping_loop(
+    config: &TrainConfig,
+    options: &ActorOptions,
+    links: &Links,
+    stop: &AtomicBool,
+) -> anyhow::Result<ActorReport> {
+    let mut worker = ActorWorker::new(config, options.id, config.device);
+    let mut report = ActorReport {
+        exit: ActorExit::Stopped,
+        env_steps: 0,
+        fragments: 0,
+        policy_versions: Vec::new(),
+        embedding_versions: Vec::new(),
+    };
+    let uses_embedding = config.algo.uses_embedding();
+    // (policy version, rollouts sent under it, when that version arrived)
+    let mut pace: Option<(u64, usize, std::time::Instant)> = None;
+    let wait = Duration::from_millis(config.policy_wait_ms);
+    let random_share = config
+        .embedding
+        .pretrain_transitions
+        .div_ceil(config.actors.max(1)) as u64;
+    loop {
+        report.env_steps = worker.env_steps();
+        if stop.load(Ordering::Relaxed) {
+            return Ok(report);
+        }
+        let newest = links.embedding.borrow().clone();
+        if let Some(e) = newest
+            && e.version != worker.embedding_version()
+        {
+            worker.set_embedding(&e)?;
+            report.embedding_versions.push(e.version);
+            tracing::info!("actor {}: embedding v{}", options.id, e.version);
+        }
+        let newest = links.policy.borrow().clone();
+        if let Some(p) = newest
+            && Some(p.version) != worker.policy_version()
+        {
+            worker.set_policy(&p)?;
+            report.policy_versions.push(p.version);
+        }
+        while let Ok(c) = links.control.try_recv() {
+            match c {
+                Control::Finish => {
+                    report.exit = ActorExit::Finished;
+                    return Ok(report);
+                }
+                Control::Evaluate(r) => {
+                    tracing::info!(
+                        "actor {}: {} evaluation episodes on policy v{}",
+                        options.id,
+                        r.episodes,
+                        worker.policy_version().unwrap_or(0)
+                    );
+                    let eval = worker.evaluate(r.episodes as usize, r.seed);
+                    let _ = links
+                        .reports
+                        .blocking_send(eval.to_wire(options.id, r.request_id));
+                }
+            }
+        }
+        // Random play only until this actor's share of the pre-training transitions is in;
+        // then wait for the first embedding rather than spend the budget on more.
+        let waiting_for_embedding =
+            uses_embedding && worker.embedding_version() == 0 && worker.env_steps() >= random_share;
+        let Some(version) = worker.policy_version() else {
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        };
+        if waiting_for_embedding {
+            std::thread::sleep(Duration::from_millis(5));
+            continue;
+        }
+        // On-policy pacing: at most `rollouts_per_policy` rollouts per policy version,
+        // unless the next version is overdue.
+        let acting = worker.embedding_version() > 0 || !uses_embedding;
+        match &mut pace {
+            _ if !acting => pace = None,
+            Some((v, sent, since)) if *v == version => {
+                if *sent >= config.rollouts_per_policy && since.elapsed() < wait {
+                    std::thread::sleep(Duration::from_millis(1));
+                    continue;
+                }
+                if *sent >= config.rollouts_per_policy {
+                    // overdue: go on, and count afresh
+                    *sent = 0;
+                    *since = std::time::Instant::now();
+                }
+            }
+            _ => pace = Some((version, 0, std::time::Instant::now())),
+        }
+        let rollout = worker.collect(config.rollout_len);
+        if uses_embedding && !rollout.transitions.is_empty() {
+            links
+                .transitions
+                .blocking_send((&rollout.transitions).into())
+                .map_err(|_| anyhow::anyhow!("the transition queue closed"))?;
+        }
+        for f in &rollout.fragments {
+            links
+                .fragments
+                .blocking_send(f.into())
+                .map_err(|_| anyhow::anyhow!("the fragment queue closed"))?;
+        }
+        if let Some((_, sent, _)) = &mut pace
+            && !rollout.fragments.is_empty()
+        {
+            *sent += 1;
+        }
+        report.fragments += rollout.fragments.len() as u64;
+    }
+}
+
+/// Runs one actor until the learner ends the run or `stop` resolves.
+pub async fn run(
+    config: TrainConfig,
+    options: ActorOptions,
+    stop: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<ActorReport> {
+    let (embedding_tx, embedding_rx) = watch::channel(None);
+    let (policy_tx, policy_rx) = watch::channel(None);
+    let (control_tx, control_rx) = std::sync::mpsc::channel();
+    let (transitions_tx, transitions_rx) = mpsc::channel::<pb::TransitionBatch>(1);
+    let (fragments_tx, fragments_rx) = mpsc::channel::<pb::RolloutFragment>(16);
+    let (reports_tx, mut reports_rx) = mpsc::channel::<pb::EvalReport>(2);
+    let mut tasks = tokio::task::JoinSet::new();
+    let learner_channel = net::channel(&options.learner)?;
+
+    if config.algo.uses_embedding() {
+        let url = options
+            .embedder
+            .clone()
+            .ok_or_else(|| anyhow::anyhow!("--embedder is required for --algo jsae"))?;
+        let channel = net::channel(&url)?;
+        tasks.spawn(async move {
+            client::watch_embedding(&url, |s| {
+                embedding_tx.send_replace(Some(Arc::new(s)));
+                async { true }
+            })
+            .await;
+        });
+        tasks.spawn(push_forever("embedder", transitions_rx, move |stream| {
+            let mut c = pb::embedder_client::EmbedderClient::new(channel.clone())
+                .max_encoding_message_size(MAX_MESSAGE_BYTES);
+            async move {
+                c.push_transitions(stream)
+                    .await
+                    .map(tonic::Response::into_inner)
+            }
+        }));
+    }
+    {
+        let url = options.learner.clone();
+        let id = options.id;
+        tasks.spawn(async move {
+            client::watch_policy(&url, id, |event| {
+                let go_on = match event {
+                    PolicyEvent::Snapshot(s) => {
+                        policy_tx.send_replace(Some(Arc::new(s)));
+                        true
+                    }
+                    PolicyEvent::Evaluate(r) => control_tx.send(Control::Evaluate(r)).is_ok(),
+                    PolicyEvent::Finish => {
+                        let _ = control_tx.send(Control::Finish);
+                        false
+                    }
+                };
+                async move { go_on }
+            })
+            .await;
+        });
+        let channel = learner_channel.clone();
+        tasks.spawn(push_forever("learner", fragments_rx, move |stream| {
+            let mut c = pb::learner_client::LearnerClient::new(channel.clone())
+                .max_encoding_message_size(MAX_MESSAGE_BYTES);
+            async move {
+                c.push_fragments(stream)
+                    .await
+                    .map(tonic::Response::into_inner)
+            }
+        }));
+        let channel = learner_channel;
+        tasks.spawn(async move {
+            while let Some(report) = reports_rx.recv().await {
+                let mut backoff = Backoff::default();
+                let mut c = pb::learner_client::LearnerClient::new(channel.clone());
+                for _ in 0..20 {
+                    match c.report_eval(report.clone()).await {
+                        Ok(_) => break,
+                        Err(s) if s.code() == Code::Unavailable => {
+                            tokio::time::sleep(backoff.next_delay()).await;
+                        }
+                        Err(s) => {
+                            tracing::warn!("evaluation report refused: {}", s.message());
+                            break;
+                        }
+                    }
+                }
+            }
+        });
+    }
+
+    let stop_flag = Arc::new(AtomicBool::new(false));
+    let stepping = {
+        let stop_flag = stop_flag.clone();
+        tokio::task::spawn_blocking(move || {
+            let links = Links {
+                embedding: embedding_rx,
+                policy: policy_rx,
+                control: control_rx,
+                transitions: transitions_tx,
+                fragments: fragments_tx,
+                reports: reports_tx,
+            };
+            stepping_loop(&config, &options, &links, &stop_flag)
+        })
+    };
+    tokio::pin!(stepping);
+    tokio::pin!(stop);
+    let exit = tokio::select! {
+        r = &mut stepping => r?,
+        () = &mut stop => {
+            stop_flag.store(true, Ordering::Relaxed);
+            // the thread may be waiting on a full queue: give it a moment, then leave
+            match tokio::time::timeout(Duration::from_secs(2), &mut stepping).await {
+                Ok(r) => r?,
+                Err(_) => anyhow::bail!("the stepping thread did not stop"),
+            }
+        }
+    };
+    tasks.abort_all();
+    exit
+}
+
+/// The actor's command line (CONTRACT.md).
+#[derive(Debug, Clone, clap::Args)]
+pub struct ActorArgs {
+    /// Embedder URL (`http://host:port`; needed by `--algo jsae`).
+    #[arg(long, env = "JSAE_EMBEDDER")]
+    pub embedder: Option<String>,
+    /// Learner URL (`http://host:port`).
+    #[arg(long, env = "JSAE_LEARNER")]
+    pub learner: String,
+    /// Environment.
+    #[arg(long, value_enum, env = "JSAE_ENV")]
+    pub env: EnvName,
+    /// Algorithm [default: the settings file's, else jsae].
+    #[arg(long, value_enum, env = "JSAE_ALGO")]
+    pub algo: Option<Algo>,
+    /// Seed.
+    #[arg(long, env = "JSAE_SEED")]
+    pub seed: u64,
+    /// Environments stepped together [default: the settings file's, else 16].
+    #[arg(long, env = "JSAE_ENVS")]
+    pub envs: Option<usize>,
+    /// Settings file (TOML, as a run's config.toml).
+    #[arg(long, env = "JSAE_CONFIG")]
+    pub config: Option<PathBuf>,
+    /// This actor's id; give every actor of a run its own [default: from the process id and
+    /// the clock].
+    #[arg(long, env = "JSAE_ACTOR_ID")]
+    pub id: Option<u64>,
+}
+
+/// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
+/// bad configuration, 1 when it fails.
+pub fn main(args: ActorArgs) -> std::process::ExitCode {
+    use std::process::ExitCode;
+    let algo = args.algo.unwrap_or_else(|| {
+        args.config
+            .as_deref()
+            .and_then(|f| TrainConfig::from_layers(Some(args.env), None, Some(f)).ok())
+            .map_or(Algo::Jsae, |c| c.algo)
+    });
+    let config = TrainConfig::for_service(args.env, algo, args.seed, args.config.as_deref())
+        .and_then(|mut c| {
+            c.envs_per_actor = args.envs.unwrap_or(c.envs_per_actor);
+            c.validate().map(|()| c)
+        });
+    let config = match config {
+        Ok(c) if c.algo.uses_embedding() && args.embedder.is_none() => {
+            eprintln!(
+                "jsae-actor: --embedder is required for --algo {}",
+                c.algo.as_str()
+            );
+            return ExitCode::from(2);
+        }
+        Ok(c) => c,
+        Err(e) => {
+            eprintln!("jsae-actor: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    net::init_logging();
+    let id = args.id.unwrap_or_else(|| {
+        let nanos = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_nanos() as u64);
+        nanos ^ (u64::from(std::process::id()) << 32)
+    });
+    let runtime = match tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+    {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("jsae-actor: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let options = ActorOptions {
+        id,
+        embedder: args.embedder,
+        learner: args.learner,
+    };
+    let result = runtime.block_on(run(config, options, net::shutdown_signal()));
+    runtime.shutdown_timeout(Duration::from_secs(2));
+    match result {
+        Ok(report) => {
+            tracing::info!(
+                "actor {id}: {:?} after {} env steps",
+                report.exit,
+                report.env_steps
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("jsae-actor: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

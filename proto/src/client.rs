@@ -1,0 +1,118 @@
+//! Following the services' snapshot streams: connect, reassemble chunks, hand each complete
+//! snapshot (or event) to a sink, and on any disconnection reconnect with backoff and resume,
+//! for as long as the sink wants more.
+
+use std::future::Future;
+
+use crate::net::{self, Backoff};
+use crate::wire::{MAX_MESSAGE_BYTES, Reassembler, pb};
+use crate::{EmbeddingSnapshot, PolicySnapshot};
+
+/// What the learner's policy stream says.
+#[derive(Debug, Clone, PartialEq)]
+pub enum PolicyEvent {
+    /// A new policy snapshot.
+    Snapshot(PolicySnapshot),
+    /// Run deterministic evaluation episodes and report them.
+    Evaluate(pb::EvalRequest),
+    /// The run is over.
+    Finish,
+}
+
+/// Follows the embedder at `url`: every complete snapshot goes to `sink`; returns when `sink`
+/// answers `false` (or `url` is not a valid URL).
+pub async fn watch_embedding<F, Fut>(url: &str, mut sink: F)
+where
+    F: FnMut(EmbeddingSnapshot) -> Fut,
+    Fut: Future<Output = bool>,
+{
+    let channel = match net::channel(url) {
+        Ok(c) => c,
+        Err(e) => {
+            tracing::error!("embedder URL {url}: {e}");
+            return;
+        }
+    };
+    let mut backoff = Backoff::default();
+    loop {
+        let mut client = pb::embedder_client::EmbedderClient::new(channel.clone())
+            .max_decoding_message_size(MAX_MESSAGE_BYTES);
+        match client
+            .watch_embedding(pb::WatchRequest { actor_id: 0 })
+            .await
+        {
+            Ok(response) => {
+                backoff.reset();
+                let mut stream = response.into_inner();
+                let mut chunks = Reassembler::default();
+                while let Ok(Some(chunk)) = stream.message().await {
+                    match chunks.push(chunk) {
+                        Ok(Some(done)) => {
+                            if !sink(done.into_embedding()).await {
+                                return;
+                            }
+                        }
+                        Ok(None) => {}
+                        Err(e) => {
+                            tracing::warn!("embedding stream from {url}: {e}");
+                            break;
+                        }
+                    }
+                }
+                tracing::info!("embedding stream from {url} ended; reconnecting");
+            }
+            Err(status) => tracing::debug!("embedder {url}: {}", status.message()),
+        }
+        tokio::time::sleep(backoff.next_delay()).await;
+    }
+}
+
+/// Follows the learner at `url`: snapshots, evaluation requests and the end of the run go to
+/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL).
+pub async fn watch_policy<F, Fut>(url: &str, actor_id: u64, mut sink: F)
+where
+    F: FnMut(PolicyEvent) -> Fut,
+    Fut: Future<Output = bool>,
+{
+    use pb::policy_event::Event;
+    let channel = match net::channel(url) {
+        Ok(c) => c,
+        Err(e) => {
+            tracing::error!("learner URL {url}: {e}");
+            return;
+        }
+    };
+    let mut backoff = Backoff::default();
+    loop {
+        let mut client = pb::learner_client::LearnerClient::new(channel.clone())
+            .max_decoding_message_size(MAX_MESSAGE_BYTES);
+        match client.watch_policy(pb::WatchRequest { actor_id }).await {
+            Ok(response) => {
+                backoff.reset();
+                let mut stream = response.into_inner();
+                let mut chunks = Reassembler::default();
+                while let Ok(Some(msg)) = stream.message().await {
+                    let event = match msg.event {
+                        Some(Event::Chunk(chunk)) => match chunks.push(chunk) {
+                            Ok(Some(done)) => PolicyEvent::Snapshot(done.into_policy()),
+                            Ok(None) => continue,
+                            Err(e) => {
+                                tracing::warn!("policy stream from {url}: {e}");
+                                break;
+                            }
+                        },
+                        Some(Event::Evaluate(request)) => PolicyEvent::Evaluate(request),
+                        Some(Event::Finish(_)) => PolicyEvent::Finish,
+                        None => continue,
+                    };
+                    if !sink(event).await {
+                        return;
+                    }
+                }
+                tracing::info!("policy stream from {url} ended; reconnecting");
+            }
+            Err(status) => tracing::debug!("learner {url}: {}", status.message()),
+        }
+        tokio::time::sleep(backoff.next_delay()).await;
+    }
+}

@@ -1,0 +1,17 @@
+//! Every setting of a run, shared by the actor, the embedder and the learner so that each
+//! service reads the same `config.toml` the same way: environment names and settings (and
+//! the spaces they give), the embedding model's and PPO's settings, the device, and the run
+//! configuration with its layering (defaults -> TOML file -> environment variables and
+//! flags) and validation.
+
+mod device;
+mod embedding;
+mod envs;
+mod ppo;
+mod run;
+
+pub use device::DeviceKind;
+pub use embedding::EmbeddingConfig;
+pub use envs::{EnvConfig, EnvName, GridworldConfig, SlotmachineConfig, validate_env_config};
+pub use ppo::PpoConfig;
+pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, TrainConfig};

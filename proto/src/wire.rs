@@ -1,0 +1,433 @@
+//! The gRPC form of the messages: the code generated from `proto/jsae.proto` (`pb`), the
+//! conversions between it and the library types, snapshot chunking, and the message-size
+//! limits every client and server sets.
+//!
+//! Conversions from the wire check structure only (a oneof that is present, sizes that fit);
+//! receivers then run the `validate` checks against their spaces.
+
+use crate::{
+    ActionBatch, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot, RolloutFragment,
+    StateBatch, TransitionBatch, ValidationError,
+};
+
+/// The generated messages, clients and servers of package `jsae.v1`.
+#[allow(
+    missing_docs,
+    clippy::all,
+    clippy::pedantic,
+    missing_debug_implementations
+)]
+pub mod pb {
+    tonic::include_proto!("jsae.v1");
+}
+
+/// The encoded file descriptor set of `jsae.proto`, for server reflection.
+pub const FILE_DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "/jsae.fds"));
+
+/// Largest encoded message a service or client accepts (16 MiB). Snapshots travel in chunks
+/// of [`SNAPSHOT_CHUNK`] bytes, so only transition batches and fragments come near it.
+pub const MAX_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
+
+/// Bytes of snapshot per chunk (1 MiB).
+pub const SNAPSHOT_CHUNK: usize = 1024 * 1024;
+
+/// Largest snapshot a receiver reassembles (256 MiB).
+pub const MAX_SNAPSHOT_BYTES: u64 = 256 * 1024 * 1024;
+
+/// A receive error of a client stream as the caller should see it: tonic reports a message
+/// above the size limit as OUT_OF_RANGE; it is RESOURCE_EXHAUSTED.
+pub fn receive_error(status: tonic::Status) -> tonic::Status {
+    if status.code() == tonic::Code::OutOfRange && status.message().contains("too large") {
+        tonic::Status::resource_exhausted(format!(
+            "{} (MAX_MESSAGE_BYTES = {MAX_MESSAGE_BYTES})",
+            status.message()
+        ))
+    } else {
+        status
+    }
+}
+
+fn missing(field: &'static str) -> ValidationError {
+    ValidationError::Missing { field }
+}
+
+impl From<&StateBatch> for pb::StateBatch {
+    fn from(b: &StateBatch) -> Self {
+        use pb::state_batch::Kind;
+        let kind = match b {
+            StateBatch::Categorical { factors, data } => Kind::Categorical(pb::CategoricalStates {
+                factors: *factors as u32,
+                data: data.clone(),
+            }),
+            StateBatch::Real { dim, data } => Kind::Real(pb::RealStates {
+                dim: *dim as u32,
+                data: data.clone(),
+            }),
+        };
+        Self { kind: Some(kind) }
+    }
+}
+
+fn state_batch(
+    field: &'static str,
+    b: Option<pb::StateBatch>,
+) -> Result<StateBatch, ValidationError> {
+    use pb::state_batch::Kind;
+    match b.and_then(|b| b.kind).ok_or(missing(field))? {
+        Kind::Categorical(c) => Ok(StateBatch::Categorical {
+            factors: c.factors as usize,
+            data: c.data,
+        }),
+        Kind::Real(r) => Ok(StateBatch::Real {
+            dim: r.dim as usize,
+            data: r.data,
+        }),
+    }
+}
+
+impl From<&ActionBatch> for pb::ActionBatch {
+    fn from(b: &ActionBatch) -> Self {
+        use pb::action_batch::Kind;
+        let kind = match b {
+            ActionBatch::Discrete(data) => {
+                Kind::Discrete(pb::DiscreteActions { data: data.clone() })
+            }
+            ActionBatch::Continuous { dim, data } => Kind::Continuous(pb::ContinuousActions {
+                dim: *dim as u32,
+                data: data.clone(),
+            }),
+        };
+        Self { kind: Some(kind) }
+    }
+}
+
+fn action_batch(
+    field: &'static str,
+    b: Option<pb::ActionBatch>,
+) -> Result<ActionBatch, ValidationError> {
+    use pb::action_batch::Kind;
+    match b.and_then(|b| b.kind).ok_or(missing(field))? {
+        Kind::Discrete(d) => Ok(ActionBatch::Discrete(d.data)),
+        Kind::Continuous(c) => Ok(ActionBatch::Continuous {
+            dim: c.dim as usize,
+            data: c.data,
+        }),
+    }
+}
+
+impl From<&TransitionBatch> for pb::TransitionBatch {
+    fn from(t: &TransitionBatch) -> Self {
+        Self {
+            actor_id: t.actor_id,
+            states: Some((&t.states).into()),
+            actions: Some((&t.actions).into()),
+            rewards: t.rewards.clone(),
+            next_states: Some((&t.next_states).into()),
+            terminated: t.terminated.clone(),
+        }
+    }
+}
+
+impl TryFrom<pb::TransitionBatch> for TransitionBatch {
+    type Error = ValidationError;
+
+    fn try_from(t: pb::TransitionBatch) -> Result<Self, Self::Error> {
+        Ok(Self {
+            actor_id: t.actor_id,
+            states: state_batch("states", t.states)?,
+            actions: action_batch("actions", t.actions)?,
+            rewards: t.rewards,
+            next_states: state_batch("next_states", t.next_states)?,
+            terminated: t.terminated,
+        })
+    }
+}
+
+impl From<&EpisodeStat> for pb::EpisodeStat {
+    fn from(e: &EpisodeStat) -> Self {
+        Self {
+            ret: e.ret,
+            length: e.length,
+            success: e.success,
+        }
+    }
+}
+
+fn episodes(list: Vec<pb::EpisodeStat>) -> Result<Vec<EpisodeStat>, ValidationError> {
+    list.into_iter()
+        .enumerate()
+        .map(|(index, e)| {
+            if e.ret.is_finite() {
+                Ok(EpisodeStat {
+                    ret: e.ret,
+                    length: e.length,
+                    success: e.success,
+                })
+            } else {
+                Err(ValidationError::NotFinite {
+                    field: "episodes.ret",
+                    index,
+                })
+            }
+        })
+        .collect()
+}
+
+impl From<&RolloutFragment> for pb::RolloutFragment {
+    fn from(f: &RolloutFragment) -> Self {
+        Self {
+            actor_id: f.actor_id,
+            env_index: f.env_index,
+            policy_version: f.policy_version,
+            embedding_version: f.embedding_version,
+            actor_env_steps: f.actor_env_steps,
+            x_dim: f.x_dim as u32,
+            x: f.x.clone(),
+            actions: Some((&f.actions).into()),
+            logp: f.logp.clone(),
+            rewards: f.rewards.clone(),
+            terminated: f.terminated.clone(),
+            truncated: f.truncated.clone(),
+            truncated_next_x: f.truncated_next_x.clone(),
+            last_next_x: f.last_next_x.clone(),
+            episodes: f.episodes.iter().map(Into::into).collect(),
+        }
+    }
+}
+
+impl TryFrom<pb::RolloutFragment> for RolloutFragment {
+    type Error = ValidationError;
+
+    fn try_from(f: pb::RolloutFragment) -> Result<Self, Self::Error> {
+        Ok(Self {
+            actor_id: f.actor_id,
+            env_index: f.env_index,
+            policy_version: f.policy_version,
+            embedding_version: f.embedding_version,
+            actor_env_steps: f.actor_env_steps,
+            x_dim: f.x_dim as usize,
+            x: f.x,
+            actions: action_batch("actions", f.actions)?,
+            logp: f.logp,
+            rewards: f.rewards,
+            terminated: f.terminated,
+            truncated: f.truncated,
+            truncated_next_x: f.truncated_next_x,
+            last_next_x: f.last_next_x,
+            episodes: episodes(f.episodes)?,
+        })
+    }
+}
+
+impl EvalReport {
+    /// The wire form, answering request `request_id` from actor `actor_id`.
+    pub fn to_wire(&self, actor_id: u64, request_id: u64) -> pb::EvalReport {
+        pb::EvalReport {
+            actor_id,
+            policy_version: self.policy_version,
+            embedding_version: self.embedding_version,
+            episodes: self.episodes.iter().map(Into::into).collect(),
+            request_id,
+        }
+    }
+
+    /// From the wire form (with its request id).
+    pub fn from_wire(r: pb::EvalReport) -> Result<(Self, u64), ValidationError> {
+        if r.episodes.is_empty() {
+            return Err(missing("episodes"));
+        }
+        Ok((
+            Self {
+                policy_version: r.policy_version,
+                embedding_version: r.embedding_version,
+                episodes: episodes(r.episodes)?,
+            },
+            r.request_id,
+        ))
+    }
+}
+
+/// Splits a snapshot's bytes into chunks of at most [`SNAPSHOT_CHUNK`] bytes (one empty
+/// chunk for empty bytes), the losses on every chunk.
+pub fn chunk_snapshot(
+    version: u64,
+    bytes: &[u8],
+    model_loss: f32,
+    decoder_loss: f32,
+) -> Vec<pb::SnapshotChunk> {
+    let total_len = bytes.len() as u64;
+    let pieces: Vec<&[u8]> = if bytes.is_empty() {
+        vec![&[]]
+    } else {
+        bytes.chunks(SNAPSHOT_CHUNK).collect()
+    };
+    let last = pieces.len() - 1;
+    let mut offset = 0;
+    pieces
+        .into_iter()
+        .enumerate()
+        .map(|(i, data)| {
+            let chunk = pb::SnapshotChunk {
+                version,
+                total_len,
+                offset,
+                data: data.to_vec(),
+                last: i == last,
+                model_loss,
+                decoder_loss,
+            };
+            offset += data.len() as u64;
+            chunk
+        })
+        .collect()
+}
+
+/// The chunks of an embedding snapshot.
+pub fn embedding_chunks(s: &EmbeddingSnapshot) -> Vec<pb::SnapshotChunk> {
+    chunk_snapshot(s.version, &s.bytes, s.model_loss, s.decoder_loss)
+}
+
+/// The chunks of a policy snapshot.
+pub fn policy_chunks(s: &PolicySnapshot) -> Vec<pb::SnapshotChunk> {
+    chunk_snapshot(s.version, &s.bytes, 0.0, 0.0)
+}
+
+/// Reassembles snapshots from a stream of chunks; a chunk out of order or of another version
+/// than the one under way is an error, and so is a snapshot above [`MAX_SNAPSHOT_BYTES`].
+#[derive(Debug, Default)]
+pub struct Reassembler {
+    version: u64,
+    total_len: u64,
+    bytes: Vec<u8>,
+}
+
+/// A complete snapshot from a [`Reassembler`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct Assembled {
+    /// Its version.
+    pub version: u64,
+    /// Its bytes.
+    pub bytes: Vec<u8>,
+    /// Model loss (embedding snapshots).
+    pub model_loss: f32,
+    /// Decoder loss (embedding snapshots).
+    pub decoder_loss: f32,
+}
+
+impl Assembled {
+    /// As an embedding snapshot.
+    pub fn into_embedding(self) -> EmbeddingSnapshot {
+        EmbeddingSnapshot {
+            version: self.version,
+            bytes: self.bytes,
+            model_loss: self.model_loss,
+            decoder_loss: self.decoder_loss,
+        }
+    }
+
+    /// As a policy snapshot.
+    pub fn into_policy(self) -> PolicySnapshot {
+        PolicySnapshot {
+            version: self.version,
+            bytes: self.bytes,
+        }
+    }
+}
+
+impl Reassembler {
+    /// Takes one chunk; returns the snapshot when `chunk` completes it.
+    pub fn push(&mut self, chunk: pb::SnapshotChunk) -> Result<Option<Assembled>, ValidationError> {
+        if chunk.total_len > MAX_SNAPSHOT_BYTES {
+            return Err(ValidationError::TooLarge {
+                field: "snapshot",
+                limit: MAX_SNAPSHOT_BYTES as usize,
+                got: chunk.total_len as usize,
+            });
+        }
+        if chunk.offset == 0 {
+            self.version = chunk.version;
+            self.total_len = chunk.total_len;
+            self.bytes.clear();
+            self.bytes.reserve(chunk.total_len as usize);
+        } else if chunk.version != self.version || chunk.offset != self.bytes.len() as u64 {
+            return Err(ValidationError::Sequence { field: "snapshot" });
+        }
+        self.bytes.extend_from_slice(&chunk.data);
+        if self.bytes.len() as u64 > self.total_len {
+            return Err(ValidationError::Sequence { field: "snapshot" });
+        }
+        if !chunk.last {
+            return Ok(None);
+        }
+        if self.bytes.len() as u64 != self.total_len {
+            return Err(ValidationError::Sequence { field: "snapshot" });
+        }
+        Ok(Some(Assembled {
+            version: self.version,
+            bytes: std::mem::take(&mut self.bytes),
+            model_loss: chunk.model_loss,
+            decoder_loss: chunk.decoder_loss,
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn snapshots_survive_chunking() {
+        for len in [
+            0,
+            1,
+            SNAPSHOT_CHUNK,
+            SNAPSHOT_CHUNK + 1,
+            3 * SNAPSHOT_CHUNK - 7,
+        ] {
+            let bytes: Vec<u8> = (0..len).map(|i| (i * 31 % 251) as u8).collect();
+            let mut r = Reassembler::default();
+            let mut done = None;
+            for c in chunk_snapshot(9, &bytes, 0.5, 0.25) {
+                assert!(done.is_none(), "a chunk after the last one");
+                done = r.push(c).expect("in order");
+            }
+            let a = done.expect("complete");
+            assert_eq!((a.version, a.bytes, a.model_loss), (9, bytes, 0.5));
+        }
+    }
+
+    #[test]
+    fn out_of_order_chunks_are_refused() {
+        let bytes = vec![1u8; SNAPSHOT_CHUNK * 2 + 1];
+        let chunks = chunk_snapshot(3, &bytes, 0.0, 0.0);
+        let mut r = Reassembler::default();
+        assert_eq!(r.push(chunks[0].clone()), Ok(None));
+        assert!(r.push(chunks[2].clone()).is_err());
+    }
+
+    #[test]
+    fn batches_round_trip_and_missing_parts_are_named() {
+        let t = TransitionBatch {
+            actor_id: 4,
+            states: StateBatch::Real {
+                dim: 2,
+                data: vec![0.1, 0.2],
+            },
+            actions: ActionBatch::Discrete(vec![3]),
+            rewards: vec![-0.01],
+            next_states: StateBatch::Real {
+                dim: 2,
+                data: vec![0.3, 0.4],
+            },
+            terminated: vec![false],
+        };
+        let w = pb::TransitionBatch::from(&t);
+        assert_eq!(TransitionBatch::try_from(w.clone()), Ok(t));
+        let mut w = w;
+        w.actions = None;
+        assert_eq!(
+            TransitionBatch::try_from(w),
+            Err(ValidationError::Missing { field: "actions" })
+        );
+    }
+}

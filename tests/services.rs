@@ -1,0 +1,514 @@
+//! The services over real gRPC on 127.0.0.1: actors, learner and embedder started from their
+//! libraries on free ports, talking exactly as the processes do.
+
+use std::path::Path;
+use std::time::Duration;
+
+use jsae_actor::envs::EnvName;
+use jsae_actor::service::{ActorExit, ActorOptions, ActorReport};
+use jsae_actor::{Algo, TrainConfig};
+use jsae_embedder::service::EmbedderOptions;
+use jsae_learner::Summary;
+use jsae_learner::service::LearnerOptions;
+use jsae_proto::wire::pb;
+use jsae_proto::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
+use jsae_tests::{small_config, temp_dir};
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tonic::Code;
+
+struct Service<T> {
+    url: String,
+    stop: Option<oneshot::Sender<()>>,
+    handle: JoinHandle<anyhow::Result<T>>,
+}
+
+impl<T> Service<T> {
+    async fn stop(mut self) -> anyhow::Result<T> {
+        if let Some(s) = self.stop.take() {
+            let _ = s.send(());
+        }
+        self.handle.await.expect("service task")
+    }
+
+    async fn join(self) -> anyhow::Result<T> {
+        tokio::time::timeout(Duration::from_secs(240), self.handle)
+            .await
+            .expect("finishes in time")
+            .expect("service task")
+    }
+}
+
+fn stop_signal() -> (
+    oneshot::Sender<()>,
+    impl Future<Output = ()> + Send + 'static,
+) {
+    let (tx, rx) = oneshot::channel::<()>();
+    (tx, async move {
+        let _ = rx.await;
+    })
+}
+
+async fn bind() -> (TcpListener, String) {
+    let l = TcpListener::bind("127.0.0.1:0").await.expect("bind");
+    let url = format!("http://{}", l.local_addr().expect("addr"));
+    (l, url)
+}
+
+async fn start_embedder(config: &TrainConfig) -> Service<()> {
+    let (listener, url) = bind().await;
+    let (stop, signal) = stop_signal();
+    let config = config.clone();
+    let handle = tokio::spawn(jsae_embedder::service::serve(
+        config,
+        listener,
+        EmbedderOptions::default(),
+        signal,
+    ));
+    Service {
+        url,
+        stop: Some(stop),
+        handle,
+    }
+}
+
+async fn start_learner_on(
+    config: &TrainConfig,
+    listener: TcpListener,
+    url: String,
+    embedder: Option<String>,
+) -> Service<Option<Summary>> {
+    let (stop, signal) = stop_signal();
+    let options = LearnerOptions {
+        out: config.out.clone(),
+        embedder,
+    };
+    let handle = tokio::spawn(jsae_learner::service::serve(
+        config.clone(),
+        listener,
+        options,
+        signal,
+    ));
+    Service {
+        url,
+        stop: Some(stop),
+        handle,
+    }
+}
+
+async fn start_learner(config: &TrainConfig, embedder: Option<String>) -> Service<Option<Summary>> {
+    let (listener, url) = bind().await;
+    start_learner_on(config, listener, url, embedder).await
+}
+
+fn start_actor(
+    config: &TrainConfig,
+    id: u64,
+    embedder: Option<&str>,
+    learner: &str,
+) -> Service<ActorReport> {
+    let (stop, signal) = stop_signal();
+    let options = ActorOptions {
+        id,
+        embedder: embedder.map(String::from),
+        learner: learner.to_string(),
+    };
+    let handle = tokio::spawn(jsae_actor::service::run(config.clone(), options, signal));
+    Service {
+        url: String::new(),
+        stop: Some(stop),
+        handle,
+    }
+}
+
+fn config(env: EnvName, algo: Algo, name: &str) -> TrainConfig {
+    let mut c = small_config(env, algo, 3, temp_dir(name));
+    c.envs_per_actor = 4;
+    c.rollout_len = 32;
+    c.embedding.pretrain_transitions = 1_024;
+    c.embedding.pretrain_epochs = 2;
+    c.embedding.update_every = 2_048;
+    c.embedding.update_steps = 5;
+    c.policy_wait_ms = 500;
+    c
+}
+
+fn metrics_rows(out: &Path) -> usize {
+    std::fs::read_to_string(out.join("metrics.csv"))
+        .map_or(0, |t| t.lines().count().saturating_sub(1))
+}
+
+async fn wait_for_rows(out: &Path, rows: usize) {
+    for _ in 0..2400 {
+        if metrics_rows(out) >= rows {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    panic!("the learner did not reach {rows} updates");
+}
+
+async fn channel(url: &str) -> tonic::transport::Channel {
+    tonic::transport::Channel::from_shared(url.to_string())
+        .expect("url")
+        .connect()
+        .await
+        .expect("connect")
+}
+
+fn increasing(v: &[u64]) -> bool {
+    v.windows(2).all(|w| w[0] < w[1])
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_actors_feed_one_learner_and_policy_versions_reach_them() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "two-actors");
+    c.actors = 2;
+    c.env_steps = 8_192;
+    let learner = start_learner(&c, None).await;
+    let a = start_actor(&c, 1, None, &learner.url);
+    let b = start_actor(&c, 2, None, &learner.url);
+    let (ra, rb) = (
+        a.join().await.expect("actor 1"),
+        b.join().await.expect("actor 2"),
+    );
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    for r in [&ra, &rb] {
+        assert_eq!(r.exit, ActorExit::Finished);
+        assert!(r.fragments > 0, "{r:?}");
+        assert!(increasing(&r.policy_versions), "{:?}", r.policy_versions);
+        assert!(r.policy_versions.len() >= 3, "{:?}", r.policy_versions);
+    }
+    assert!(summary.env_steps >= c.env_steps, "{summary:?}");
+    assert!(
+        summary.env_steps <= ra.env_steps + rb.env_steps,
+        "{summary:?}"
+    );
+    assert!(
+        summary.env_steps > ra.env_steps.max(rb.env_steps),
+        "both counted"
+    );
+    assert!(summary.learner_updates >= 2);
+    assert!(c.out.join("summary.json").exists());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn embedding_versions_reach_the_actors_and_the_learner() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Jsae, "jsae-services");
+    c.env_steps = 8_192;
+    let embedder = start_embedder(&c).await;
+    let learner = start_learner(&c, Some(embedder.url.clone())).await;
+    let actor = start_actor(&c, 1, Some(&embedder.url), &learner.url);
+    let report = actor.join().await.expect("actor");
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    embedder.stop().await.expect("embedder stops cleanly");
+    assert_eq!(report.exit, ActorExit::Finished);
+    assert!(increasing(&report.embedding_versions), "{report:?}");
+    assert!(report.embedding_versions.len() >= 2, "{report:?}");
+    assert!(summary.embedding_version >= 1, "{summary:?}");
+    let ckpt = c.out.join("checkpoints");
+    assert!(
+        std::fs::read_dir(&ckpt)
+            .expect("checkpoints")
+            .filter_map(Result::ok)
+            .any(|e| e.file_name().to_string_lossy().starts_with("embedding-v")),
+        "the learner saved the embedding it followed"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_killed_actor_does_not_stop_the_run_and_a_new_one_joins() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "kill-actor");
+    c.actors = 2;
+    c.env_steps = 12_288;
+    let learner = start_learner(&c, None).await;
+    let a = start_actor(&c, 1, None, &learner.url);
+    let b = start_actor(&c, 2, None, &learner.url);
+    wait_for_rows(&c.out, 2).await;
+    a.handle.abort(); // gone mid-run, connections dropped
+    let joined = start_actor(&c, 3, None, &learner.url);
+    let rb = b.join().await.expect("actor 2");
+    let rc = joined.join().await.expect("actor 3");
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    assert_eq!(
+        (rb.exit, rc.exit),
+        (ActorExit::Finished, ActorExit::Finished)
+    );
+    assert!(rc.fragments > 0, "the new actor contributed: {rc:?}");
+    assert!(summary.env_steps >= c.env_steps);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "restart-learner");
+    c.env_steps = 12_288;
+    let (listener, url) = bind().await;
+    let addr = listener.local_addr().expect("addr");
+    let first = start_learner_on(&c, listener, url.clone(), None).await;
+    let actor = start_actor(&c, 1, None, &url);
+    wait_for_rows(&c.out, 2).await;
+    assert!(
+        first.stop().await.expect("stops cleanly").is_none(),
+        "interrupted, no summary"
+    );
+    let saved = jsae_learner::service::latest_checkpoint(&c.out)
+        .expect("a checkpoint")
+        .version;
+    tokio::time::sleep(Duration::from_millis(700)).await; // the actor is retrying meanwhile
+    let listener = TcpListener::bind(addr).await.expect("rebind the same port");
+    let second = start_learner_on(&c, listener, url, None).await;
+    let report = actor.join().await.expect("actor");
+    let summary = second
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    assert_eq!(report.exit, ActorExit::Finished);
+    assert!(
+        increasing(&report.policy_versions),
+        "{:?}",
+        report.policy_versions
+    );
+    assert!(
+        report.policy_versions.last().is_some_and(|&v| v > saved),
+        "versions from the restarted learner reached the actor: {:?} (saved {saved})",
+        report.policy_versions
+    );
+    assert!(summary.policy_version > saved);
+}
+
+fn fragment(x_dim: usize, n: usize) -> RolloutFragment {
+    RolloutFragment {
+        actor_id: 9,
+        env_index: 0,
+        policy_version: 0,
+        embedding_version: 0,
+        actor_env_steps: n as u64,
+        x_dim,
+        x: vec![0.5; n * x_dim],
+        actions: ActionBatch::Discrete(vec![1; n]),
+        logp: vec![-6.0; n],
+        rewards: vec![-0.01; n],
+        terminated: vec![false; n],
+        truncated: vec![false; n],
+        truncated_next_x: vec![],
+        last_next_x: vec![0.5; x_dim],
+        episodes: vec![],
+    }
+}
+
+async fn push_fragments(url: &str, msgs: Vec<pb::RolloutFragment>) -> Result<u64, tonic::Status> {
+    let mut client = pb::learner_client::LearnerClient::connect(url.to_string())
+        .await
+        .expect("connect")
+        .max_encoding_message_size(64 << 20);
+    client
+        .push_fragments(tokio_stream::iter(msgs))
+        .await
+        .map(|r| r.into_inner().accepted)
+}
+
+fn transitions(n: usize, reward: f32) -> TransitionBatch {
+    TransitionBatch {
+        actor_id: 9,
+        states: StateBatch::Real {
+            dim: 2,
+            data: vec![0.3; 2 * n],
+        },
+        actions: ActionBatch::Discrete((0..n as u32).map(|i| i % 512).collect()),
+        rewards: vec![reward; n],
+        next_states: StateBatch::Real {
+            dim: 2,
+            data: vec![0.31; 2 * n],
+        },
+        terminated: vec![false; n],
+    }
+}
+
+fn assert_refused(r: Result<u64, tonic::Status>, code: Code, words: &str) {
+    match r {
+        Ok(n) => panic!("accepted {n} messages, expected {code:?}"),
+        Err(s) => {
+            assert_eq!(s.code(), code, "{}", s.message());
+            assert!(
+                s.message().contains(words),
+                "{:?} lacks {words:?}",
+                s.message()
+            );
+        }
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
+    let c = config(EnvName::Gridworld, Algo::Ppo, "malformed");
+    let learner = start_learner(&c, None).await;
+    let good = pb::RolloutFragment::from(&fragment(2, 8));
+    assert_eq!(
+        push_fragments(&learner.url, vec![good.clone()])
+            .await
+            .expect("a good fragment"),
+        1
+    );
+    let mut short = good.clone();
+    short.x.pop();
+    assert_refused(
+        push_fragments(&learner.url, vec![good.clone(), short]).await,
+        Code::InvalidArgument,
+        "fragment 1: x",
+    );
+    let mut nan = good.clone();
+    nan.rewards[3] = f32::NAN;
+    assert_refused(
+        push_fragments(&learner.url, vec![nan]).await,
+        Code::InvalidArgument,
+        "not finite",
+    );
+    let mut inf = good.clone();
+    inf.x[0] = f32::INFINITY;
+    assert_refused(
+        push_fragments(&learner.url, vec![inf]).await,
+        Code::InvalidArgument,
+        "not finite",
+    );
+    let mut future = good.clone();
+    future.policy_version = 99;
+    assert_refused(
+        push_fragments(&learner.url, vec![future]).await,
+        Code::InvalidArgument,
+        "unknown policy version",
+    );
+    let mut out_of_range = good.clone();
+    out_of_range.actions = Some((&ActionBatch::Discrete(vec![512; 8])).into());
+    assert_refused(
+        push_fragments(&learner.url, vec![out_of_range]).await,
+        Code::InvalidArgument,
+        "out of range",
+    );
+    let mut missing = good.clone();
+    missing.actions = None;
+    assert_refused(
+        push_fragments(&learner.url, vec![missing]).await,
+        Code::InvalidArgument,
+        "missing",
+    );
+    let huge = pb::RolloutFragment::from(&fragment(2, 3_000_000));
+    let r = push_fragments(&learner.url, vec![huge]).await;
+    assert!(
+        matches!(&r, Err(s) if s.code() == Code::ResourceExhausted),
+        "oversize: {r:?}"
+    );
+    // still serving after all that
+    assert_eq!(
+        push_fragments(&learner.url, vec![good])
+            .await
+            .expect("still serving"),
+        1
+    );
+    assert!(learner.stop().await.is_ok());
+
+    // the embedder keeps what it accepted before a bad batch: those alone complete the
+    // pre-training set and yield a snapshot
+    let mut c = config(EnvName::Gridworld, Algo::Jsae, "malformed-embedder");
+    c.embedding.pretrain_transitions = 512;
+    c.embedding.pretrain_epochs = 1;
+    let embedder = start_embedder(&c).await;
+    let mut client = pb::embedder_client::EmbedderClient::connect(embedder.url.clone())
+        .await
+        .expect("connect");
+    let batches = vec![
+        pb::TransitionBatch::from(&transitions(256, -0.01)),
+        pb::TransitionBatch::from(&transitions(256, -0.01)),
+        pb::TransitionBatch::from(&transitions(4, f32::NAN)),
+    ];
+    let r = client
+        .push_transitions(tokio_stream::iter(batches))
+        .await
+        .map(|r| r.into_inner().accepted);
+    assert_refused(r, Code::InvalidArgument, "transition batch 2: rewards");
+    let mut watch = client
+        .watch_embedding(pb::WatchRequest { actor_id: 0 })
+        .await
+        .expect("watch")
+        .into_inner();
+    let first = tokio::time::timeout(Duration::from_secs(60), watch.message())
+        .await
+        .expect("a snapshot in time")
+        .expect("stream")
+        .expect("a chunk");
+    assert_eq!(first.version, 1);
+    embedder.stop().await.expect("stops cleanly");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn health_answers_serving_and_reflection_lists_the_services() {
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
+    let c = config(EnvName::Gridworld, Algo::Jsae, "health");
+    let embedder = start_embedder(&c).await;
+    let learner = start_learner(&c, Some(embedder.url.clone())).await;
+    for (url, service) in [
+        (&embedder.url, "jsae.v1.Embedder"),
+        (&learner.url, "jsae.v1.Learner"),
+        (&learner.url, ""),
+    ] {
+        let mut health = HealthClient::new(channel(url).await);
+        let status = health
+            .check(HealthCheckRequest {
+                service: service.into(),
+            })
+            .await
+            .expect("health check")
+            .into_inner()
+            .status;
+        assert_eq!(
+            status,
+            ServingStatus::Serving as i32,
+            "{service:?} at {url}"
+        );
+    }
+    use tonic_reflection::pb::v1::ServerReflectionRequest;
+    use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
+    use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
+    use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
+    let mut reflection = ServerReflectionClient::new(channel(&learner.url).await);
+    let request = ServerReflectionRequest {
+        host: String::new(),
+        message_request: Some(MessageRequest::ListServices(String::new())),
+    };
+    let mut answers = reflection
+        .server_reflection_info(tokio_stream::iter(vec![request]))
+        .await
+        .expect("reflection")
+        .into_inner();
+    let answer = answers.message().await.expect("stream").expect("an answer");
+    let Some(MessageResponse::ListServicesResponse(list)) = answer.message_response else {
+        panic!("not a service list: {answer:?}");
+    };
+    let names: Vec<String> = list.service.into_iter().map(|s| s.name).collect();
+    for want in [
+        "jsae.v1.Learner",
+        "jsae.v1.Embedder",
+        "grpc.health.v1.Health",
+    ] {
+        assert!(
+            names.iter().any(|n| n == want),
+            "{want} missing from {names:?}"
+        );
+    }
+    learner.stop().await.expect("learner stops");
+    embedder.stop().await.expect("embedder stops");
+}
