@@ -450,7 +450,10 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
         embedder: args.embedder,
         learner: args.learner,
     };
-    let result = runtime.block_on(run(config, options, net::shutdown_signal()));
+    let result = runtime.block_on(async {
+        let shutdown = net::shutdown_signal()?;
+        run(config, options, shutdown).await
+    });
     runtime.shutdown_timeout(Duration::from_secs(2));
     match result {
         Ok(report) => {

@@ -101,3 +101,55 @@ fn the_services_answer_help_and_refuse_bad_input_with_exit_2() {
     let reason = String::from_utf8_lossy(&actor.stderr);
     assert!(reason.contains("--embedder"), "{reason}");
 }
+
+#[test]
+fn services_stop_with_exit_0_on_sigterm() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = std::env::temp_dir().join(format!("jsae-cli-term-{}", std::process::id()));
+    let out = dir.to_str().unwrap_or(".").to_string();
+    let common = ["--env", "gridworld", "--algo", "ppo", "--seed", "1"];
+    let learner_args: Vec<&str> = [
+        "learner",
+        "--listen",
+        "127.0.0.1:0",
+        "--env-steps",
+        "100000",
+    ]
+    .into_iter()
+    .chain(common)
+    .chain(["--out", &out])
+    .collect();
+    let embedder_args: Vec<&str> = ["embedder", "--listen", "127.0.0.1:0"]
+        .into_iter()
+        .chain(common)
+        .collect();
+    for args in [learner_args, embedder_args] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("reads");
+        assert!(line.contains("listening on 127.0.0.1:"), "{line}");
+        let pid = child.id().to_string();
+        let sent = Command::new("kill").args(["-TERM", &pid]).status();
+        assert!(sent.is_ok_and(|s| s.success()));
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+        let status = loop {
+            if let Some(s) = child.try_wait().expect("waits") {
+                break s;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "{args:?} ignored SIGTERM"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        };
+        assert_eq!(status.code(), Some(0), "{args:?}: {status}");
+    }
+}

@@ -280,13 +280,14 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
         }
     };
     let result = runtime.block_on(async {
+        let shutdown = net::shutdown_signal()?;
         let listener = net::bind(&args.listen).await?;
         let addr = listener.local_addr()?;
         println!("jsae-embedder listening on {addr}");
         let options = EmbedderOptions {
             checkpoint_dir: args.checkpoint_dir,
         };
-        serve(config, listener, options, net::shutdown_signal()).await
+        serve(config, listener, options, shutdown).await
     });
     match result {
         Ok(()) => ExitCode::SUCCESS,

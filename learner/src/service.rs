@@ -527,13 +527,14 @@ pub fn main(args: LearnerArgs) -> std::process::ExitCode {
         .then_some(args.embedder)
         .flatten();
     let result = runtime.block_on(async {
+        let shutdown = net::shutdown_signal()?;
         let listener = net::bind(&args.listen).await?;
         println!("jsae-learner listening on {}", listener.local_addr()?);
         let options = LearnerOptions {
             out: args.out,
             embedder,
         };
-        serve(config, listener, options, net::shutdown_signal()).await
+        serve(config, listener, options, shutdown).await
     });
     match result {
         Ok(Some(summary)) => {

@@ -73,19 +73,22 @@ mod tests {
         config.gridworld.actuators = 5;
         config.gridworld.bins = 7;
         config.slotmachine.bins = 3;
-        for name in [
-            EnvName::Gridworld,
-            EnvName::GridworldDiscrete,
-            EnvName::Slotmachine,
-        ] {
-            let env = make_env(name, &config);
-            let (states, actions) = name.spaces(&config);
-            assert_eq!(
-                (&states, &actions),
-                (env.state_space(), env.action_space()),
-                "{}",
-                name.as_str()
-            );
+        for factored in [false, true] {
+            config.slotmachine.factored = factored;
+            for name in [
+                EnvName::Gridworld,
+                EnvName::GridworldDiscrete,
+                EnvName::Slotmachine,
+            ] {
+                let env = make_env(name, &config);
+                let (states, actions) = name.spaces(&config);
+                assert_eq!(
+                    (&states, &actions),
+                    (env.state_space(), env.action_space()),
+                    "{}",
+                    name.as_str()
+                );
+            }
         }
     }
 }

@@ -37,9 +37,16 @@ impl Slotmachine {
     /// A slotmachine with the given settings.
     pub fn new(config: SlotmachineConfig) -> Self {
         let n = (config.bins as usize).pow(4);
+        let state_space = if config.factored {
+            StateSpace::Categorical {
+                sizes: vec![FACES as usize; 4],
+            }
+        } else {
+            StateSpace::discrete((FACES as usize).pow(4))
+        };
         Self {
             config,
-            state_space: StateSpace::discrete((FACES as usize).pow(4)),
+            state_space,
             action_space: ActionSpace::Discrete { n },
             pos: [0; 4],
             steps: 0,
@@ -119,8 +126,12 @@ impl Env for Slotmachine {
 
     fn push_state(&self, out: &mut StateBatch) {
         if let StateBatch::Categorical { data, .. } = out {
-            let index = self.pos.iter().rev().fold(0, |acc, &p| acc * FACES + p);
-            data.push(index);
+            if self.config.factored {
+                data.extend_from_slice(&self.pos);
+            } else {
+                let index = self.pos.iter().rev().fold(0, |acc, &p| acc * FACES + p);
+                data.push(index);
+            }
         }
     }
 }

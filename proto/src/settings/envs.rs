@@ -86,6 +86,9 @@ pub struct SlotmachineConfig {
     pub threshold: u32,
     /// Steps per episode.
     pub horizon: u32,
+    /// The state as four categorical factors, one per reel (6 faces each; PPO sees 4
+    /// concatenated one-hots of 6), instead of one one-hot over all 6^4 reel positions.
+    pub factored: bool,
 }
 
 impl Default for SlotmachineConfig {
@@ -94,6 +97,7 @@ impl Default for SlotmachineConfig {
             bins: 8,
             threshold: 2,
             horizon: 20,
+            factored: false,
         }
     }
 }
@@ -140,7 +144,11 @@ impl EnvName {
                 },
             ),
             Self::Slotmachine => (
-                StateSpace::discrete(6usize.pow(4)),
+                if config.slotmachine.factored {
+                    StateSpace::Categorical { sizes: vec![6; 4] }
+                } else {
+                    StateSpace::discrete(6usize.pow(4))
+                },
                 ActionSpace::Discrete {
                     n: (config.slotmachine.bins as usize).pow(4),
                 },
