@@ -434,11 +434,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
             .map_or(0, |d| d.as_nanos() as u64);
         nanos ^ (u64::from(std::process::id()) << 32)
     });
-    let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-    {
+    let runtime = match net::runtime() {
         Ok(r) => r,
         Err(e) => {
             eprintln!("jsae-actor: {e}");

@@ -42,47 +42,38 @@ pub struct EmbedderService {
     accepted: Arc<AtomicU64>,
 }
 
-fn stopped(stopping: &watch::Receiver<bool>) -> impl Future<Output = ()> + use<> {
-    let mut s = stopping.clone();
-    async move {
-        let _ = s.wait_for(|&v| v).await;
-    }
-}
-
 #[tonic::async_trait]
 impl pb::embedder_server::Embedder for EmbedderService {
     async fn push_transitions(
         &self,
         request: Request<Streaming<pb::TransitionBatch>>,
     ) -> Result<Response<pb::PushSummary>, Status> {
-        let mut stream = request.into_inner();
-        let mut accepted = 0;
-        let stop = stopped(&self.stopping);
-        tokio::pin!(stop);
-        loop {
-            let msg = tokio::select! {
-                m = stream.message() => m.map_err(wire::receive_error)?,
-                () = &mut stop => return Err(Status::unavailable("the embedder is shutting down")),
-            };
-            let Some(msg) = msg else { break };
-            if msg.rewards.len() > MAX_BATCH_TRANSITIONS {
-                return Err(Status::resource_exhausted(format!(
-                    "transition batch {accepted}: {} transitions, at most {MAX_BATCH_TRANSITIONS}",
-                    msg.rewards.len()
-                )));
-            }
-            let batch = TransitionBatch::try_from(msg)
-                .and_then(|b| b.validate(&self.states, &self.actions).map(|()| b))
-                .map_err(|e| {
-                    Status::invalid_argument(format!("transition batch {accepted}: {e}"))
-                })?;
-            self.queue
-                .send(batch)
-                .await
-                .map_err(|_| Status::unavailable("the embedder is shutting down"))?;
-            accepted += 1;
-            self.accepted.fetch_add(1, Ordering::Relaxed);
-        }
+        let accepted = net::receive_all(
+            request.into_inner(),
+            &self.stopping,
+            "embedder",
+            |i, msg| {
+                let checked = if msg.rewards.len() > MAX_BATCH_TRANSITIONS {
+                    Err(Status::resource_exhausted(format!(
+                        "transition batch {i}: {} transitions, at most {MAX_BATCH_TRANSITIONS}",
+                        msg.rewards.len()
+                    )))
+                } else {
+                    TransitionBatch::try_from(msg)
+                        .and_then(|b| b.validate(&self.states, &self.actions).map(|()| b))
+                        .map_err(|e| Status::invalid_argument(format!("transition batch {i}: {e}")))
+                };
+                async move {
+                    self.queue
+                        .send(checked?)
+                        .await
+                        .map_err(|_| Status::unavailable("the embedder is shutting down"))?;
+                    self.accepted.fetch_add(1, Ordering::Relaxed);
+                    Ok(())
+                }
+            },
+        )
+        .await?;
         Ok(Response::new(pb::PushSummary {
             accepted,
             rejected: 0,
@@ -96,7 +87,7 @@ impl pb::embedder_server::Embedder for EmbedderService {
         _request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchEmbeddingStream>, Status> {
         let mut published = self.published.clone();
-        let stop = stopped(&self.stopping);
+        let stop = net::stopped(&self.stopping);
         let (tx, rx) = mpsc::channel(4);
         tokio::spawn(async move {
             tokio::pin!(stop);
@@ -268,11 +259,7 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
             }
         };
     net::init_logging();
-    let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-    {
+    let runtime = match net::runtime() {
         Ok(r) => r,
         Err(e) => {
             eprintln!("jsae-embedder: {e}");

@@ -64,13 +64,6 @@ pub struct LearnerService {
     stopping: watch::Receiver<bool>,
 }
 
-fn stopped(stopping: &watch::Receiver<bool>) -> impl Future<Output = ()> + use<> {
-    let mut s = stopping.clone();
-    async move {
-        let _ = s.wait_for(|&v| v).await;
-    }
-}
-
 impl LearnerService {
     fn check(&self, index: u64, msg: pb::RolloutFragment) -> Result<RolloutFragment, Status> {
         if msg.rewards.len() > MAX_FRAGMENT_STEPS {
@@ -101,23 +94,17 @@ impl pb::learner_server::Learner for LearnerService {
         &self,
         request: Request<Streaming<pb::RolloutFragment>>,
     ) -> Result<Response<pb::PushSummary>, Status> {
-        let mut stream = request.into_inner();
-        let mut accepted = 0;
-        let stop = stopped(&self.stopping);
-        tokio::pin!(stop);
-        loop {
-            let msg = tokio::select! {
-                m = stream.message() => m.map_err(wire::receive_error)?,
-                () = &mut stop => return Err(Status::unavailable("the learner is shutting down")),
-            };
-            let Some(msg) = msg else { break };
-            let fragment = self.check(accepted, msg)?;
-            self.queue
-                .send(Input::Fragment(Box::new(fragment)))
-                .await
-                .map_err(|_| Status::unavailable("the learner is shutting down"))?;
-            accepted += 1;
-        }
+        let accepted =
+            net::receive_all(request.into_inner(), &self.stopping, "learner", |i, msg| {
+                let checked = self.check(i, msg);
+                async move {
+                    self.queue
+                        .send(Input::Fragment(Box::new(checked?)))
+                        .await
+                        .map_err(|_| Status::unavailable("the learner is shutting down"))
+                }
+            })
+            .await?;
         Ok(Response::new(pb::PushSummary {
             accepted,
             rejected: 0,
@@ -132,7 +119,7 @@ impl pb::learner_server::Learner for LearnerService {
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
         let mut state = self.state.clone();
-        let stop = stopped(&self.stopping);
+        let stop = net::stopped(&self.stopping);
         let (tx, rx) = mpsc::channel(4);
         tokio::spawn(async move {
             tokio::pin!(stop);
@@ -387,7 +374,7 @@ pub async fn serve(
     };
     if let Some(url) = options.embedder.clone() {
         let queue = queue_tx.clone();
-        let stop = stopped(&stop_rx);
+        let stop = net::stopped(&stop_rx);
         tokio::spawn(async move {
             let follow = client::watch_embedding(&url, |s| {
                 let queue = queue.clone();
@@ -510,11 +497,7 @@ pub fn main(args: LearnerArgs) -> std::process::ExitCode {
         }
     };
     net::init_logging();
-    let runtime = match tokio::runtime::Builder::new_multi_thread()
-        .worker_threads(2)
-        .enable_all()
-        .build()
-    {
+    let runtime = match net::runtime() {
         Ok(r) => r,
         Err(e) => {
             eprintln!("jsae-learner: {e}");

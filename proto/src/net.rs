@@ -107,3 +107,52 @@ pub fn init_logging() {
         .with_writer(std::io::stderr)
         .try_init();
 }
+
+/// A future that resolves once `stopping` turns true (or its sender is gone).
+pub fn stopped(
+    stopping: &tokio::sync::watch::Receiver<bool>,
+) -> impl std::future::Future<Output = ()> + Send + use<> {
+    let mut s = stopping.clone();
+    async move {
+        let _ = s.wait_for(|&v| v).await;
+    }
+}
+
+/// Receives a client stream to its end, handing each message and its index to `each`; ends
+/// early with `each`'s error (the messages before it stay handed over), with UNAVAILABLE when
+/// `stopping` turns true, and with RESOURCE_EXHAUSTED for a message above the size limit.
+/// Returns the number of messages handed over.
+pub async fn receive_all<M, F, Fut>(
+    mut stream: tonic::Streaming<M>,
+    stopping: &tokio::sync::watch::Receiver<bool>,
+    service: &str,
+    mut each: F,
+) -> Result<u64, tonic::Status>
+where
+    F: FnMut(u64, M) -> Fut,
+    Fut: std::future::Future<Output = Result<(), tonic::Status>>,
+{
+    let stop = stopped(stopping);
+    tokio::pin!(stop);
+    let mut count = 0;
+    loop {
+        let msg = tokio::select! {
+            m = stream.message() => m.map_err(crate::wire::receive_error)?,
+            () = &mut stop => {
+                return Err(tonic::Status::unavailable(format!("the {service} is shutting down")))
+            }
+        };
+        let Some(msg) = msg else { return Ok(count) };
+        each(count, msg).await?;
+        count += 1;
+    }
+}
+
+/// The tokio runtime of a service process: two worker threads (the model work runs on its
+/// own threads).
+pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+}

@@ -187,8 +187,23 @@ mod tests {
         assert_eq!(
             batch,
             StateBatch::Categorical {
+                factors: 4,
+                data: vec![4, 4, 4, 4]
+            }
+        );
+        // the unfactored state: one index over all 6^4 positions
+        let mut one_hot = Slotmachine::new(SlotmachineConfig {
+            factored: false,
+            ..Default::default()
+        });
+        one_hot.set_positions([4, 1, 0, 2]);
+        let mut batch = StateBatch::empty(one_hot.state_space());
+        one_hot.push_state(&mut batch);
+        assert_eq!(
+            batch,
+            StateBatch::Categorical {
                 factors: 1,
-                data: vec![4 + 4 * 6 + 4 * 36 + 4 * 216]
+                data: vec![4 + 6 + 2 * 216]
             }
         );
     }

@@ -97,7 +97,7 @@ impl Default for SlotmachineConfig {
             bins: 8,
             threshold: 2,
             horizon: 20,
-            factored: false,
+            factored: true,
         }
     }
 }

@@ -230,15 +230,23 @@ impl TrainConfig {
             // found the goal at all in 500k steps; with it every seed tried did.
             exploration.bonus = 0.1;
         }
-        if env == EnvName::Slotmachine {
-            embedding.state_dim = 8;
-            embedding.action_dim = 4;
-            ppo.gamma = 0.9;
-        }
         if algo == Algo::Jsae {
             ppo.gae_lambda = 0.97;
             ppo.tanh_mean = true;
             ppo.ent_coef = 0.05;
+        }
+        if env == EnvName::Slotmachine {
+            // The next reel position is `position + advance mod 6`: a linear T on the two
+            // embeddings cannot express it, and 30 epochs of a tanh T leave it near chance.
+            // With these settings the model loss after pre-training is 0.9 nats over the four
+            // reels (chance: 7.2) and the policy improves; see the README's results.
+            embedding.state_dim = 16;
+            embedding.action_dim = 4;
+            embedding.transition_hidden = 128;
+            embedding.pretrain_epochs = 200;
+            embedding.update_steps = 200;
+            ppo.gamma = 0.9;
+            ppo.ent_coef = 0.0;
         }
         Self {
             env,
