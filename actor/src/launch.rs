@@ -11,10 +11,7 @@ use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use jsae_embedder::Embedding;
-use jsae_embedder::nn::BurnDevice;
 use jsae_learner::Summary;
-use jsae_proto::EmbeddingSnapshot;
 use jsae_proto::settings::TrainConfig;
 
 use crate::plot;
@@ -147,28 +144,6 @@ fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
     Some((steps, ret, success))
 }
 
-fn latest_embedding(dir: &Path) -> Option<EmbeddingSnapshot> {
-    let best = std::fs::read_dir(dir)
-        .ok()?
-        .filter_map(Result::ok)
-        .filter_map(|e| {
-            let name = e.file_name().into_string().ok()?;
-            let v: u64 = name
-                .strip_prefix("embedding-v")?
-                .strip_suffix(".bpk")?
-                .parse()
-                .ok()?;
-            Some((v, e.path()))
-        })
-        .max_by_key(|(v, _)| *v)?;
-    Some(EmbeddingSnapshot {
-        version: best.0,
-        bytes: std::fs::read(best.1).ok()?,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-    })
-}
-
 /// Trains with the embedder, the learner and `config.actors` actors as separate processes
 /// of `exe` (this program) and writes the run directory.
 pub fn train_processes(
@@ -280,18 +255,7 @@ pub fn train_processes(
     let text = std::fs::read_to_string(dir.join("summary.json")).map_err(io(&dir))?;
     let summary: Summary = serde_json::from_str(&text)
         .map_err(|e| TrainError::Service(format!("summary.json: {e}")))?;
-    let (states, actions) = config.spaces();
-    let embedding = latest_embedding(&dir.join("checkpoints")).and_then(|s| {
-        Embedding::from_snapshot(
-            &config.embedding,
-            &states,
-            &actions,
-            &s,
-            &config.device.device(),
-        )
-        .ok()
-    });
-    let plots = plot::write_run_plots(&dir, config, embedding.as_ref()).map_err(io(&dir))?;
+    let plots = plot::plot_run_dir(&dir, config).map_err(io(&dir))?;
     progress.finish();
     Ok(RunOutcome {
         summary,

@@ -6,6 +6,8 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use jsae_embedder::Embedding;
+use jsae_embedder::nn::BurnDevice;
+use jsae_proto::EmbeddingSnapshot;
 
 use crate::envs::{EnvName, gridworld::action_motions};
 use jsae_proto::settings::TrainConfig;
@@ -218,4 +220,44 @@ pub fn write_run_plots(
         written.push(path);
     }
     Ok(written)
+}
+
+/// The newest `embedding-v{N}.bpk` in `dir`, if any.
+pub fn latest_embedding(dir: &Path) -> Option<EmbeddingSnapshot> {
+    let best = std::fs::read_dir(dir)
+        .ok()?
+        .filter_map(Result::ok)
+        .filter_map(|e| {
+            let name = e.file_name().into_string().ok()?;
+            let v: u64 = name
+                .strip_prefix("embedding-v")?
+                .strip_suffix(".bpk")?
+                .parse()
+                .ok()?;
+            Some((v, e.path()))
+        })
+        .max_by_key(|(v, _)| *v)?;
+    Some(EmbeddingSnapshot {
+        version: best.0,
+        bytes: std::fs::read(best.1).ok()?,
+        model_loss: 0.0,
+        decoder_loss: 0.0,
+    })
+}
+
+/// Draws the plots of a run directory written by separate services (or by hand): the learning
+/// curve from `metrics.csv`, and the action embeddings of the newest embedding checkpoint.
+pub fn plot_run_dir(dir: &Path, config: &TrainConfig) -> std::io::Result<Vec<PathBuf>> {
+    let (states, actions) = config.spaces();
+    let embedding = latest_embedding(&dir.join("checkpoints")).and_then(|s| {
+        Embedding::from_snapshot(
+            &config.embedding,
+            &states,
+            &actions,
+            &s,
+            &config.device.device(),
+        )
+        .ok()
+    });
+    write_run_plots(dir, config, embedding.as_ref())
 }

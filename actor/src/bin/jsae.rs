@@ -36,6 +36,12 @@ enum Command {
         #[arg(long)]
         transport: bool,
     },
+    /// Draw the plots of a run directory (one the services wrote, for example by hand).
+    Plot {
+        /// The run directory (holding config.toml and metrics.csv).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// The embedder service (as `jsae-embedder`).
     Embedder(jsae_embedder::service::EmbedderArgs),
     /// The learner service (as `jsae-learner`).
@@ -157,6 +163,28 @@ fn main() -> ExitCode {
             }
             print!("{}", jsae_actor::bench_transport::run(quick));
             ExitCode::SUCCESS
+        }
+        Command::Plot { out } => {
+            let config = match TrainConfig::from_layers(None, None, Some(&out.join("config.toml")))
+            {
+                Ok(c) => c,
+                Err(e) => {
+                    eprintln!("jsae plot: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            match jsae_actor::plot::plot_run_dir(&out, &config) {
+                Ok(paths) => {
+                    for p in paths {
+                        println!("plot: {}", p.display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae plot: {}: {e}", out.display());
+                    ExitCode::FAILURE
+                }
+            }
         }
         Command::Embedder(_) | Command::Learner(_) | Command::Actor(_) => ExitCode::SUCCESS,
     }
