@@ -235,6 +235,12 @@ impl TrainConfig {
             ppo.tanh_mean = true;
             ppo.ent_coef = 0.05;
         }
+        if env == EnvName::Gridworld && algo == Algo::Jsae {
+            // With the continuous state the evaluation's mean action ran into a wall for the
+            // whole episode on 3 of 3 seeds at 0.05 (the sampled policy reached the goal in
+            // every training episode); at 0.01, 1 of 3 (seeds 2 and 3 solved it).
+            ppo.ent_coef = 0.01;
+        }
         if env == EnvName::Slotmachine {
             // The next reel position is `position + advance mod 6`: a linear T on the two
             // embeddings cannot express it, and 30 epochs of a tanh T leave it near chance.
