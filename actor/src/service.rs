@@ -151,6 +151,7 @@ fn stepping_loop(
     // (policy version, rollouts sent under it, when that version arrived)
     let mut pace: Option<(u64, usize, std::time::Instant)> = None;
     let wait = Duration::from_millis(config.policy_wait_ms);
+    let mut refused: (Option<u64>, Option<u64>) = (None, None);
     let random_share = config
         .embedding
         .pretrain_transitions
@@ -160,20 +161,36 @@ fn stepping_loop(
         if stop.load(Ordering::Relaxed) {
             return Ok(report);
         }
+        // A snapshot that does not fit this actor's model (another run's service, a
+        // different config) is refused once, logged, and the current weights kept.
         let newest = links.embedding.borrow().clone();
         if let Some(e) = newest
             && e.version != worker.embedding_version()
+            && refused.0 != Some(e.version)
         {
-            worker.set_embedding(&e)?;
-            report.embedding_versions.push(e.version);
-            tracing::info!("actor {}: embedding v{}", options.id, e.version);
+            match worker.set_embedding(&e) {
+                Ok(()) => {
+                    report.embedding_versions.push(e.version);
+                    tracing::info!("actor {}: embedding v{}", options.id, e.version);
+                }
+                Err(err) => {
+                    tracing::error!("actor {}: embedding refused: {err}", options.id);
+                    refused.0 = Some(e.version);
+                }
+            }
         }
         let newest = links.policy.borrow().clone();
         if let Some(p) = newest
             && Some(p.version) != worker.policy_version()
+            && refused.1 != Some(p.version)
         {
-            worker.set_policy(&p)?;
-            report.policy_versions.push(p.version);
+            match worker.set_policy(&p) {
+                Ok(()) => report.policy_versions.push(p.version),
+                Err(err) => {
+                    tracing::error!("actor {}: policy refused: {err}", options.id);
+                    refused.1 = Some(p.version);
+                }
+            }
         }
         while let Ok(c) = links.control.try_recv() {
             match c {

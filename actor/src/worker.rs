@@ -179,9 +179,11 @@ impl ActorWorker {
         Ok(())
     }
 
-    /// Swaps in a new policy (ignored if not newer).
+    /// Swaps in another policy version (the current one is ignored).
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) -> Result<(), WorkerError> {
-        if self.policy_version.is_some_and(|v| snapshot.version <= v) {
+        // Any other version replaces the weights, an older one too: that is a learner that
+        // restarted without a checkpoint, and its versions are the valid ones now.
+        if self.policy_version == Some(snapshot.version) {
             return Ok(());
         }
         let mut policy = self.policy.clone();
