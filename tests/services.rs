@@ -57,14 +57,15 @@ async fn bind() -> (TcpListener, String) {
 }
 
 async fn start_embedder(config: &TrainConfig) -> Service<()> {
+    start_embedder_with(config, EmbedderOptions::default()).await
+}
+
+async fn start_embedder_with(config: &TrainConfig, options: EmbedderOptions) -> Service<()> {
     let (listener, url) = bind().await;
     let (stop, signal) = stop_signal();
     let config = config.clone();
     let handle = tokio::spawn(jsae_embedder::service::serve(
-        config,
-        listener,
-        EmbedderOptions::default(),
-        signal,
+        config, listener, options, signal,
     ));
     Service {
         url,
@@ -511,4 +512,46 @@ async fn health_answers_serving_and_reflection_lists_the_services() {
     }
     learner.stop().await.expect("learner stops");
     embedder.stop().await.expect("embedder stops");
+}
+
+async fn first_embedding_version(url: &str) -> u64 {
+    let mut client = pb::embedder_client::EmbedderClient::connect(url.to_string())
+        .await
+        .expect("connect");
+    let mut watch = client
+        .watch_embedding(pb::WatchRequest { actor_id: 0 })
+        .await
+        .expect("watch")
+        .into_inner();
+    tokio::time::timeout(Duration::from_secs(60), watch.message())
+        .await
+        .expect("a snapshot in time")
+        .expect("stream")
+        .expect("a chunk")
+        .version
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_embedder_continues_its_version_line() {
+    let mut c = config(EnvName::Gridworld, Algo::Jsae, "restart-embedder");
+    c.embedding.pretrain_transitions = 512;
+    c.embedding.pretrain_epochs = 1;
+    let options = EmbedderOptions {
+        checkpoint_dir: Some(c.out.join("checkpoints")),
+    };
+    let first = start_embedder_with(&c, options.clone()).await;
+    let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())
+        .await
+        .expect("connect");
+    let batches = vec![pb::TransitionBatch::from(&transitions(512, -0.01))];
+    client
+        .push_transitions(tokio_stream::iter(batches))
+        .await
+        .expect("accepted");
+    assert_eq!(first_embedding_version(&first.url).await, 1);
+    first.stop().await.expect("stops cleanly");
+    // no new transitions: the restarted embedder serves the saved version at once
+    let second = start_embedder_with(&c, options).await;
+    assert_eq!(first_embedding_version(&second.url).await, 1);
+    second.stop().await.expect("stops cleanly");
 }

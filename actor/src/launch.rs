@@ -161,7 +161,12 @@ pub fn train_processes(
     std::fs::create_dir_all(&logs).map_err(io(&logs))?;
     std::fs::create_dir_all(dir.join("checkpoints")).map_err(io(&dir))?;
     // a fresh run: a previous run's checkpoint would make the learner resume
-    for stale in ["policy-latest.bpk", "policy-latest.version"] {
+    for stale in [
+        "policy-latest.bpk",
+        "policy-latest.version",
+        "embedding-latest.bpk",
+        "embedding-latest.version",
+    ] {
         let _ = std::fs::remove_file(dir.join("checkpoints").join(stale));
     }
     let config_path = std::path::absolute(dir.join("config.toml")).map_err(io(&dir))?;

@@ -114,8 +114,9 @@ impl pb::embedder_server::Embedder for EmbedderService {
 /// Where the embedder keeps its checkpoints, if anywhere.
 #[derive(Debug, Clone, Default)]
 pub struct EmbedderOptions {
-    /// Each published snapshot is written here as `embedding-v{N}.bpk`, and the last one
-    /// again as `embedding-latest.bpk` at shutdown.
+    /// Each published snapshot is written here as `embedding-v{N}.bpk` and as
+    /// `embedding-latest.bpk` (with its version in `embedding-latest.version`); an embedder
+    /// started on a directory that holds them continues from there.
     pub checkpoint_dir: Option<PathBuf>,
 }
 
@@ -127,6 +128,22 @@ fn write_checkpoint(dir: &std::path::Path, name: &str, bytes: &[u8]) {
     if let Err(e) = result {
         tracing::warn!("checkpoint {name} in {}: {e}", dir.display());
     }
+}
+
+/// The latest embedding checkpoint in `dir`, if any.
+pub fn latest_checkpoint(dir: &std::path::Path) -> Option<EmbeddingSnapshot> {
+    let version = std::fs::read_to_string(dir.join("embedding-latest.version"))
+        .ok()?
+        .trim()
+        .parse()
+        .ok()?;
+    let bytes = std::fs::read(dir.join("embedding-latest.bpk")).ok()?;
+    Some(EmbeddingSnapshot {
+        version,
+        bytes,
+        model_loss: 0.0,
+        decoder_loss: 0.0,
+    })
 }
 
 fn training_loop(
@@ -144,6 +161,23 @@ fn training_loop(
         config.seed,
         config.device,
     );
+    if let Some(dir) = &options.checkpoint_dir
+        && let Some(saved) = latest_checkpoint(dir)
+    {
+        match trainer.restore(&saved) {
+            Ok(()) => {
+                tracing::info!(
+                    "resuming from the embedding checkpoint, version {}",
+                    saved.version
+                );
+                publish.send_replace(Some(Arc::new(saved)));
+            }
+            Err(e) => tracing::error!(
+                "the embedding checkpoint in {} does not fit this model ({e}); starting afresh",
+                dir.display()
+            ),
+        }
+    }
     while let Some(batch) = queue.blocking_recv() {
         trainer.ingest(&batch).map_err(|e| e.to_string())?;
         if let Some(snap) = trainer.poll().map_err(|e| e.to_string())? {
@@ -155,23 +189,20 @@ fn training_loop(
                 snap.decoder_loss
             );
             if let Some(dir) = &options.checkpoint_dir {
-                write_checkpoint(
-                    dir,
-                    &format!("embedding-v{}.bpk", snap.version),
-                    &snap.bytes,
-                );
+                let versioned = format!("embedding-v{}.bpk", snap.version);
+                write_checkpoint(dir, &versioned, &snap.bytes);
+                write_checkpoint(dir, "embedding-latest.bpk", &snap.bytes);
+                let version = format!("{}\n", snap.version);
+                write_checkpoint(dir, "embedding-latest.version", version.as_bytes());
             }
             publish.send_replace(Some(Arc::new(snap)));
         }
     }
-    if let (Some(dir), Some(last)) = (&options.checkpoint_dir, publish.borrow().clone()) {
-        write_checkpoint(dir, "embedding-latest.bpk", &last.bytes);
-    }
     Ok(())
 }
 
-/// Serves the embedder on `listener` until `shutdown` resolves, then drains the queue,
-/// writes the final checkpoint and returns.
+/// Serves the embedder on `listener` until `shutdown` resolves, then drains the queue and
+/// returns (every published snapshot is checkpointed as it is published).
 pub async fn serve(
     config: TrainConfig,
     listener: TcpListener,
@@ -241,7 +272,7 @@ pub struct EmbedderArgs {
     /// Settings file (TOML, as a run's config.toml).
     #[arg(long, env = "JSAE_CONFIG")]
     pub config: Option<PathBuf>,
-    /// Directory for snapshot checkpoints.
+    /// Directory for snapshot checkpoints (an embedder started on one continues from it).
     #[arg(long, env = "JSAE_CHECKPOINT_DIR")]
     pub checkpoint_dir: Option<PathBuf>,
 }

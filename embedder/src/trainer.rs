@@ -194,6 +194,17 @@ impl EmbedderTrainer {
         (a.into_scalar::<f32>(), b.into_scalar::<f32>())
     }
 
+    /// Continues from a saved snapshot (a restarted embedder): its weights and version, as
+    /// pre-trained; the replay buffer refills from new transitions and the optimiser state
+    /// starts afresh. The next snapshot is `version + 1`.
+    pub fn restore(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), nn::RecordError> {
+        self.model.load_bytes(&snapshot.bytes)?;
+        self.stats.version = snapshot.version;
+        self.stats.model_loss = snapshot.model_loss;
+        self.stats.decoder_loss = snapshot.decoder_loss;
+        Ok(())
+    }
+
     /// The current weights as a snapshot with the current version.
     pub fn snapshot(&self) -> Result<EmbeddingSnapshot, nn::RecordError> {
         let inference = self
