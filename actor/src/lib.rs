@@ -2,9 +2,11 @@
 //!
 //! Environments (`envs`: gridworld, gridworld-discrete, slotmachine behind one [`envs::Env`]
 //! trait), the rollout worker (`worker`: vectorised stepping with batched `phi -> pi_i -> f`
-//! inference, weight swaps, random play before the first embedding), the one-process
-//! training driver (`train`), the run configuration (`config`), progress reporting
-//! (`progress`), plots (`plot`) and the inference/update benchmark (`bench`).
+//! inference, weight swaps, random play before the first embedding), the actor process
+//! (`service`: the worker fed by the services' snapshot streams over gRPC), the one-process
+//! training driver (`train`), the launcher of the services as processes (`launch`), progress
+//! reporting (`progress`), plots (`plot`), the inference/update benchmark (`bench`) and the
+//! transport benchmark (`bench_transport`). The run configuration is `jsae_proto::settings`.
 
 #![forbid(unsafe_code)]
 

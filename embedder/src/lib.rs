@@ -5,10 +5,11 @@
 //! g-table for discrete actions, an MLP for continuous ones). phi, g and T minimise
 //! `-log P(s'|s,a)`; f is trained on detached `g(a)`. RL losses never touch this model.
 //!
-//! Layout: `config` (settings), `model` (the networks and losses), `nearest` (f for discrete
+//! Layout: `model` (the networks and losses), `nearest` (f for discrete
 //! actions), `replay` (the bounded transition buffer), `trainer` (pre-training, continuous
 //! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `nn` (burn
-//! building blocks the learner shares).
+//! building blocks the learner shares), `service` (the gRPC embedder service). The settings
+//! are `jsae_proto::settings::EmbeddingConfig`.
 
 #![forbid(unsafe_code)]
 

@@ -6,9 +6,10 @@
 //! entropy bonus, per-minibatch advantage normalisation, global grad-norm clipping, linear LR
 //! annealing) and publishes versioned policy snapshots.
 //!
-//! Layout: `config` (settings), `policy` (Gaussian / categorical policy and critic), `gae`,
+//! Layout: `policy` (Gaussian / categorical policy and critic), `gae`,
 //! `normalise` (running statistics, reward scaling), `ppo` (the learner), `record`
-//! (metrics.csv and summary.json).
+//! (metrics.csv and summary.json), `service` (the gRPC learner service). The settings are
+//! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
 
