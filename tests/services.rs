@@ -357,7 +357,7 @@ fn assert_refused(r: Result<u64, tonic::Status>, code: Code, words: &str) {
 async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
     let c = config(EnvName::Gridworld, Algo::Ppo, "malformed");
     let learner = start_learner(&c, None).await;
-    let good = pb::RolloutFragment::from(&fragment(2, 8));
+    let good = pb::RolloutFragment::from(fragment(2, 8));
     assert_eq!(
         push_fragments(&learner.url, vec![good.clone()])
             .await
@@ -393,7 +393,7 @@ async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
         "unknown policy version",
     );
     let mut out_of_range = good.clone();
-    out_of_range.actions = Some((&ActionBatch::Discrete(vec![512; 8])).into());
+    out_of_range.actions = Some(ActionBatch::Discrete(vec![512; 8]).into());
     assert_refused(
         push_fragments(&learner.url, vec![out_of_range]).await,
         Code::InvalidArgument,
@@ -406,7 +406,7 @@ async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
         Code::InvalidArgument,
         "missing",
     );
-    let huge = pb::RolloutFragment::from(&fragment(2, 3_000_000));
+    let huge = pb::RolloutFragment::from(fragment(2, 3_000_000));
     let r = push_fragments(&learner.url, vec![huge]).await;
     assert!(
         matches!(&r, Err(s) if s.code() == Code::ResourceExhausted),
@@ -431,9 +431,9 @@ async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
         .await
         .expect("connect");
     let batches = vec![
-        pb::TransitionBatch::from(&transitions(256, -0.01)),
-        pb::TransitionBatch::from(&transitions(256, -0.01)),
-        pb::TransitionBatch::from(&transitions(4, f32::NAN)),
+        pb::TransitionBatch::from(transitions(256, -0.01)),
+        pb::TransitionBatch::from(transitions(256, -0.01)),
+        pb::TransitionBatch::from(transitions(4, f32::NAN)),
     ];
     let r = client
         .push_transitions(tokio_stream::iter(batches))
@@ -543,7 +543,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
     let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())
         .await
         .expect("connect");
-    let batches = vec![pb::TransitionBatch::from(&transitions(512, -0.01))];
+    let batches = vec![pb::TransitionBatch::from(transitions(512, -0.01))];
     client
         .push_transitions(tokio_stream::iter(batches))
         .await

@@ -88,7 +88,7 @@ async fn embedder_grpc(config: &TrainConfig, batches: &[TransitionBatch]) -> any
     ));
     let mut client = pb::embedder_client::EmbedderClient::new(jsae_proto::net::channel(&url)?)
         .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
-    let wire: Vec<pb::TransitionBatch> = batches.iter().map(Into::into).collect();
+    let wire: Vec<pb::TransitionBatch> = batches.iter().cloned().map(Into::into).collect();
     // warm up the connection
     client
         .push_transitions(tokio_stream::iter(wire[..1].to_vec()))
@@ -154,7 +154,7 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
     ));
     let mut client = pb::learner_client::LearnerClient::new(jsae_proto::net::channel(&url)?)
         .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
-    let wire: Vec<pb::RolloutFragment> = frags.iter().map(Into::into).collect();
+    let wire: Vec<pb::RolloutFragment> = frags.iter().cloned().map(Into::into).collect();
     client
         .push_fragments(tokio_stream::iter(wire[..1].to_vec()))
         .await?;

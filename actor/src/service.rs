@@ -246,21 +246,22 @@ fn stepping_loop(
         if uses_embedding && !rollout.transitions.is_empty() {
             links
                 .transitions
-                .blocking_send((&rollout.transitions).into())
+                .blocking_send(rollout.transitions.into())
                 .map_err(|_| anyhow::anyhow!("the transition queue closed"))?;
         }
-        for f in &rollout.fragments {
+        let sent_fragments = rollout.fragments.len() as u64;
+        for f in rollout.fragments {
             links
                 .fragments
                 .blocking_send(f.into())
                 .map_err(|_| anyhow::anyhow!("the fragment queue closed"))?;
         }
         if let Some((_, sent, _)) = &mut pace
-            && !rollout.fragments.is_empty()
+            && sent_fragments > 0
         {
             *sent += 1;
         }
-        report.fragments += rollout.fragments.len() as u64;
+        report.fragments += sent_fragments;
     }
 }
 

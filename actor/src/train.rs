@@ -7,12 +7,11 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use jsae_embedder::EmbedderTrainer;
-use jsae_learner::{Ingested, Learner, MetricsWriter, RunMeta, Summary};
+use jsae_learner::{Ingested, Learner, MetricsWriter, Summary};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 
 use crate::plot;
 use crate::progress::Progress;
-use jsae_learner::policy_shape;
 use jsae_proto::settings::TrainConfig;
 
 use crate::worker::{ActorWorker, WorkerError};
@@ -82,17 +81,7 @@ pub fn train_one_process(
         actors[0].state_space().clone(),
         actors[0].action_space().clone(),
     );
-    let (input, head) = policy_shape(config, &states, &actions);
-    let mut ppo = config.ppo.clone();
-    ppo.batch_steps = config.round_steps();
-    let mut learner = Learner::new(
-        ppo,
-        input,
-        head,
-        config.env_steps,
-        config.seed,
-        config.device,
-    );
+    let mut learner = Learner::for_run(config);
     let mut embedder = config.algo.uses_embedding().then(|| {
         EmbedderTrainer::new(
             config.embedding.clone(),
@@ -153,24 +142,9 @@ pub fn train_one_process(
     }
 
     progress.note("evaluating the deterministic policy");
-    let eval = actors[0].evaluate(config.eval_episodes, config.seed ^ 0xE7A1);
+    let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
     let wall = started.elapsed().as_secs_f64();
-    let meta = RunMeta {
-        env: config.env.as_str().into(),
-        algo: config.algo.as_str().into(),
-        seed: config.seed,
-        device: config.device.as_str().into(),
-    };
-    let summary = Summary::new(
-        &meta,
-        total(&actors),
-        wall,
-        &eval,
-        learner.updates(),
-        learner.lag(),
-        learner.dropped(),
-        learner.version(),
-    );
+    let summary = learner.summary(config, total(&actors), wall, &eval);
     let ckpt = dir.join("checkpoints");
     std::fs::write(
         ckpt.join(format!("policy-v{}.bpk", last_policy.version)),

@@ -197,6 +197,49 @@ impl Learner {
         }
     }
 
+    /// The learner of a run: its policy shape from the environment's spaces and the
+    /// algorithm, one batch = one rollout round of all actors.
+    pub fn for_run(config: &jsae_proto::settings::TrainConfig) -> Self {
+        let (states, actions) = config.spaces();
+        let (input, head) = crate::policy_shape(config, &states, &actions);
+        let mut ppo = config.ppo.clone();
+        ppo.batch_steps = config.round_steps();
+        Self::new(
+            ppo,
+            input,
+            head,
+            config.env_steps,
+            config.seed,
+            config.device,
+        )
+    }
+
+    /// The run's summary, from the evaluation report and this learner's counters.
+    pub fn summary(
+        &self,
+        config: &jsae_proto::settings::TrainConfig,
+        env_steps: u64,
+        wall_seconds: f64,
+        eval: &jsae_proto::EvalReport,
+    ) -> crate::Summary {
+        let meta = crate::RunMeta {
+            env: config.env.as_str().into(),
+            algo: config.algo.as_str().into(),
+            seed: config.seed,
+            device: config.device.as_str().into(),
+        };
+        crate::Summary::new(
+            &meta,
+            env_steps,
+            wall_seconds,
+            eval,
+            self.updates(),
+            self.lag(),
+            self.dropped(),
+            self.version(),
+        )
+    }
+
     /// Current policy version (0: initial weights).
     pub fn version(&self) -> u64 {
         self.version

@@ -29,7 +29,7 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::{Ingested, Learner, MetricsWriter, RunMeta, Summary, policy_shape};
+use crate::{Ingested, Learner, MetricsWriter, Summary};
 
 /// Messages queued between the service and the learner thread.
 const QUEUE: usize = 256;
@@ -244,7 +244,7 @@ impl LearnerLoop {
         let request = pb::EvalRequest {
             request_id: self.started.elapsed().as_nanos() as u64 | 1,
             episodes: self.config.eval_episodes as u32,
-            seed: self.config.seed ^ 0xE7A1,
+            seed: self.config.eval_seed(),
         };
         let mut evaluating = false;
         while let Some(input) = queue.blocking_recv() {
@@ -289,22 +289,11 @@ impl LearnerLoop {
     }
 
     fn finish(self, eval: &EvalReport) -> anyhow::Result<Summary> {
-        let c = &self.config;
-        let meta = RunMeta {
-            env: c.env.as_str().into(),
-            algo: c.algo.as_str().into(),
-            seed: c.seed,
-            device: c.device.as_str().into(),
-        };
-        let summary = Summary::new(
-            &meta,
+        let summary = self.learner.summary(
+            &self.config,
             self.learner.env_steps(),
             self.started.elapsed().as_secs_f64(),
             eval,
-            self.learner.updates(),
-            self.learner.lag(),
-            self.learner.dropped(),
-            self.learner.version(),
         );
         let ckpt = self.out.join("checkpoints");
         let last = self.learner.snapshot()?;
@@ -332,20 +321,9 @@ pub async fn serve(
     options: LearnerOptions,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<Option<Summary>> {
-    let (states, actions) = config.spaces();
-    let (input, head) = policy_shape(&config, &states, &actions);
     let out = options.out.clone();
     std::fs::create_dir_all(out.join("checkpoints"))?;
-    let mut ppo = config.ppo.clone();
-    ppo.batch_steps = config.round_steps();
-    let mut learner = Learner::new(
-        ppo,
-        input,
-        head,
-        config.env_steps,
-        config.seed,
-        config.device,
-    );
+    let mut learner = Learner::for_run(&config);
     let resumed = match latest_checkpoint(&out) {
         Some(s) => {
             learner.restore(&s)?;
@@ -365,8 +343,8 @@ pub async fn serve(
     let (stop_tx, stop_rx) = watch::channel(false);
     let version = Arc::new(AtomicU64::new(learner.version()));
     let service = LearnerService {
-        x_dim: input,
-        actions: head.action_space(),
+        x_dim: learner.policy().input_dim(),
+        actions: learner.head().action_space(),
         version: version.clone(),
         queue: queue_tx.clone(),
         state: publish_rx.clone(),

@@ -51,17 +51,19 @@ fn missing(field: &'static str) -> ValidationError {
     ValidationError::Missing { field }
 }
 
-impl From<&StateBatch> for pb::StateBatch {
-    fn from(b: &StateBatch) -> Self {
+// Library -> wire conversions take the value: the data moves into the message, no copy.
+
+impl From<StateBatch> for pb::StateBatch {
+    fn from(b: StateBatch) -> Self {
         use pb::state_batch::Kind;
         let kind = match b {
             StateBatch::Categorical { factors, data } => Kind::Categorical(pb::CategoricalStates {
-                factors: *factors as u32,
-                data: data.clone(),
+                factors: factors as u32,
+                data,
             }),
             StateBatch::Real { dim, data } => Kind::Real(pb::RealStates {
-                dim: *dim as u32,
-                data: data.clone(),
+                dim: dim as u32,
+                data,
             }),
         };
         Self { kind: Some(kind) }
@@ -85,16 +87,14 @@ fn state_batch(
     }
 }
 
-impl From<&ActionBatch> for pb::ActionBatch {
-    fn from(b: &ActionBatch) -> Self {
+impl From<ActionBatch> for pb::ActionBatch {
+    fn from(b: ActionBatch) -> Self {
         use pb::action_batch::Kind;
         let kind = match b {
-            ActionBatch::Discrete(data) => {
-                Kind::Discrete(pb::DiscreteActions { data: data.clone() })
-            }
+            ActionBatch::Discrete(data) => Kind::Discrete(pb::DiscreteActions { data }),
             ActionBatch::Continuous { dim, data } => Kind::Continuous(pb::ContinuousActions {
-                dim: *dim as u32,
-                data: data.clone(),
+                dim: dim as u32,
+                data,
             }),
         };
         Self { kind: Some(kind) }
@@ -115,15 +115,15 @@ fn action_batch(
     }
 }
 
-impl From<&TransitionBatch> for pb::TransitionBatch {
-    fn from(t: &TransitionBatch) -> Self {
+impl From<TransitionBatch> for pb::TransitionBatch {
+    fn from(t: TransitionBatch) -> Self {
         Self {
             actor_id: t.actor_id,
-            states: Some((&t.states).into()),
-            actions: Some((&t.actions).into()),
-            rewards: t.rewards.clone(),
-            next_states: Some((&t.next_states).into()),
-            terminated: t.terminated.clone(),
+            states: Some(t.states.into()),
+            actions: Some(t.actions.into()),
+            rewards: t.rewards,
+            next_states: Some(t.next_states.into()),
+            terminated: t.terminated,
         }
     }
 }
@@ -173,8 +173,8 @@ fn episodes(list: Vec<pb::EpisodeStat>) -> Result<Vec<EpisodeStat>, ValidationEr
         .collect()
 }
 
-impl From<&RolloutFragment> for pb::RolloutFragment {
-    fn from(f: &RolloutFragment) -> Self {
+impl From<RolloutFragment> for pb::RolloutFragment {
+    fn from(f: RolloutFragment) -> Self {
         Self {
             actor_id: f.actor_id,
             env_index: f.env_index,
@@ -182,14 +182,14 @@ impl From<&RolloutFragment> for pb::RolloutFragment {
             embedding_version: f.embedding_version,
             actor_env_steps: f.actor_env_steps,
             x_dim: f.x_dim as u32,
-            x: f.x.clone(),
-            actions: Some((&f.actions).into()),
-            logp: f.logp.clone(),
-            rewards: f.rewards.clone(),
-            terminated: f.terminated.clone(),
-            truncated: f.truncated.clone(),
-            truncated_next_x: f.truncated_next_x.clone(),
-            last_next_x: f.last_next_x.clone(),
+            x: f.x,
+            actions: Some(f.actions.into()),
+            logp: f.logp,
+            rewards: f.rewards,
+            terminated: f.terminated,
+            truncated: f.truncated,
+            truncated_next_x: f.truncated_next_x,
+            last_next_x: f.last_next_x,
             episodes: f.episodes.iter().map(Into::into).collect(),
         }
     }
@@ -421,7 +421,7 @@ mod tests {
             },
             terminated: vec![false],
         };
-        let w = pb::TransitionBatch::from(&t);
+        let w = pb::TransitionBatch::from(t.clone());
         assert_eq!(TransitionBatch::try_from(w.clone()), Ok(t));
         let mut w = w;
         w.actions = None;

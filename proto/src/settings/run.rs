@@ -340,6 +340,11 @@ impl TrainConfig {
         Ok(c)
     }
 
+    /// Seed of the deterministic evaluation episodes at the end of a run.
+    pub fn eval_seed(&self) -> u64 {
+        self.seed ^ 0xE7A1
+    }
+
     /// The environment's state and action spaces under these settings.
     pub fn spaces(&self) -> (StateSpace, ActionSpace) {
         self.env.spaces(&self.environment)
