@@ -77,7 +77,7 @@ fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: De
     t.elapsed().as_secs_f64() * 1e6 / repeats as f64
 }
 
-fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKind) -> ActorWorker {
+pub(crate) fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKind) -> ActorWorker {
     let mut c = config.clone();
     c.envs_per_actor = envs;
     let mut worker = ActorWorker::new(&c, 0, device);

@@ -249,7 +249,9 @@ impl ActorWorker {
         }
     }
 
-    /// Maps sampled policy actions to environment actions.
+    /// Maps sampled policy actions to environment actions: f for embeddings, then continuous
+    /// actions clipped to the action box (the fragment keeps the unclipped sample, whose
+    /// log-probability PPO scores; the embedder gets the action that was executed).
     fn env_actions(&mut self, policy_actions: &ActionBatch, out: &mut ActionBatch) {
         match (&mut self.embedding, policy_actions) {
             (Some(e), ActionBatch::Continuous { data, .. })
@@ -258,6 +260,16 @@ impl ActorWorker {
                 e.decode(data, out)
             }
             _ => out.extend_from(policy_actions),
+        }
+        if let (ActionSpace::Continuous { low, high, .. }, ActionBatch::Continuous { data, .. }) =
+            (&self.actions, out)
+        {
+            let dim = low.len().max(1);
+            for row in data.chunks_exact_mut(dim) {
+                for ((a, l), h) in row.iter_mut().zip(low).zip(high) {
+                    *a = a.clamp(*l, *h);
+                }
+            }
         }
     }
 

@@ -14,7 +14,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::EmbeddingConfig;
-use crate::nn::{self, Mlp, MlpConfig};
+use crate::nn::{self, Mlp, MlpConfig, ObsNorm};
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]
@@ -33,6 +33,9 @@ pub struct EmbeddingNet {
     transition: Linear,
     /// f for continuous actions: `E -> A`, one hidden layer.
     decoder: Option<Mlp>,
+    /// Running statistics of real-valued states (`normalize_states`): phi sees normalised
+    /// states and T predicts normalised next states.
+    state_norm: Option<ObsNorm>,
 }
 
 /// The embedding model of one environment: the network and the spaces it was built for.
@@ -109,6 +112,10 @@ impl EmbeddingModel {
             h => (Some(uniform_linear(m + d, h, true, rng, device)), h),
         };
         let transition = uniform_linear(t_in, states.feature_len(), true, rng, device);
+        let state_norm = match states {
+            StateSpace::Real { dim } if config.normalize_states => Some(ObsNorm::new(*dim, device)),
+            _ => None,
+        };
         let offsets = match states {
             StateSpace::Categorical { sizes } => sizes
                 .iter()
@@ -129,6 +136,7 @@ impl EmbeddingModel {
                 transition_in,
                 transition,
                 decoder,
+                state_norm,
             },
             states: states.clone(),
             actions: actions.clone(),
@@ -202,12 +210,27 @@ impl EmbeddingModel {
                     *factors,
                 )
             }
-            StateBatch::Real { dim, data } => StateInput::Values(nn::tensor2(
+            StateBatch::Real { dim, data } => StateInput::Values(self.normalised(nn::tensor2(
                 data.clone(),
                 data.len() / dim,
                 *dim,
                 &self.device,
-            )),
+            ))),
+        }
+    }
+
+    fn normalised(&self, states: Tensor<2>) -> Tensor<2> {
+        match &self.net.state_norm {
+            Some(norm) => norm.apply(states),
+            None => states,
+        }
+    }
+
+    /// Merges real-valued states into the normalisation statistics (no-op without them).
+    pub fn update_state_stats(&mut self, states: &StateBatch) {
+        let device = self.device.clone();
+        if let (Some(norm), StateBatch::Real { data, .. }) = (&mut self.net.state_norm, states) {
+            norm.update(data, &device);
         }
     }
 
@@ -311,7 +334,12 @@ impl EmbeddingModel {
                 total.unwrap_or_else(|| Tensor::zeros([1], &self.device))
             }
             (StateBatch::Real { dim, data }, _) => {
-                let target = nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device);
+                let target = self.normalised(nn::tensor2(
+                    data.clone(),
+                    data.len() / dim,
+                    *dim,
+                    &self.device,
+                ));
                 (out - target).square().mean()
             }
             _ => unreachable_state(),

@@ -107,6 +107,7 @@ impl EmbedderTrainer {
     /// Validates and stores a batch of transitions.
     pub fn ingest(&mut self, batch: &TransitionBatch) -> Result<(), ValidationError> {
         batch.validate(self.model.state_space(), self.model.action_space())?;
+        self.model.update_state_stats(&batch.states);
         self.replay.push(batch);
         self.since_update += batch.len();
         self.stats.transitions += batch.len() as u64;
@@ -283,11 +284,22 @@ mod tests {
 
     #[test]
     fn continuous_models_train_phi_g_t_by_mse_and_f_to_reconstruct_actions() {
+        // Unnormalised states in [0, 1]; normalised ones far from it (MuJoCo-like scales).
+        for (normalize_states, offset, scale) in [(false, 0.0, 1.0), (true, 50.0, 20.0)] {
+            continuous_model_trains(normalize_states, offset, scale);
+        }
+    }
+
+    fn continuous_model_trains(normalize_states: bool, offset: f32, scale: f32) {
         let mut rng = ChaCha8Rng::seed_from_u64(2);
         let n = 1024;
         let s: Vec<f32> = (0..2 * n).map(|_| rng.random_range(0.0..1.0)).collect();
         let a: Vec<f32> = (0..2 * n).map(|_| rng.random_range(-1.0..1.0)).collect();
         let next: Vec<f32> = s.iter().zip(&a).map(|(s, a)| s + 0.1 * a).collect();
+        let (s, next): (Vec<f32>, Vec<f32>) = (
+            s.iter().map(|v| offset + scale * v).collect(),
+            next.iter().map(|v| offset + scale * v).collect(),
+        );
         let batch = TransitionBatch {
             actor_id: 0,
             states: StateBatch::Real { dim: 2, data: s },
@@ -305,6 +317,7 @@ mod tests {
             pretrain_transitions: n,
             pretrain_epochs: 40,
             batch_size: 128,
+            normalize_states,
             ..EmbeddingConfig::default()
         };
         let mut t = EmbedderTrainer::new(
@@ -319,14 +332,29 @@ mod tests {
             actions: batch.actions.clone(),
             next_states: batch.next_states.clone(),
         };
-        let before = t.evaluate(&fixed);
         t.ingest(&batch).expect("valid");
-        t.poll().expect("serialises").expect("pre-trained");
+        // The loss before training, under the statistics the batch gave (normalised case).
+        let before = t.evaluate(&fixed);
+        let snapshot = t.poll().expect("serialises").expect("pre-trained");
         let after = t.evaluate(&fixed);
         assert!(
             after.0 < 0.5 * before.0,
-            "model loss {before:?} -> {after:?}"
+            "normalise {normalize_states}: model loss {before:?} -> {after:?}"
         );
+        if normalize_states {
+            // The statistics travel in the snapshot: a fresh model loaded from it embeds the
+            // states exactly as the trained one does.
+            let mut fresh = EmbedderTrainer::new(
+                t.config.clone(),
+                &StateSpace::Real { dim: 2 },
+                &actions,
+                7,
+                DeviceKind::Flex,
+            );
+            fresh.restore(&snapshot).expect("loads");
+            let x = |tr: &EmbedderTrainer| nn::to_vec(tr.model().embed_states(&batch.states));
+            assert_eq!(x(&fresh), x(&t));
+        }
         assert!(
             after.1 < 0.5 * before.1,
             "decoder loss {before:?} -> {after:?}"

@@ -13,6 +13,7 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::PpoConfig;
+use jsae_embedder::nn::ObsNorm;
 
 const LOG_STD_MIN: f32 = -5.0;
 const LOG_STD_MAX: f32 = 2.0;
@@ -61,6 +62,8 @@ pub struct PolicyNet {
     actor: Mlp,
     critic: Mlp,
     log_std: Param<Tensor<1>>,
+    /// Input normalisation (`ppo.normalize_obs`).
+    obs_norm: Option<ObsNorm>,
 }
 
 /// What training needs per minibatch.
@@ -117,6 +120,7 @@ impl Policy {
                 actor,
                 critic,
                 log_std,
+                obs_norm: config.normalize_obs.then(|| ObsNorm::new(input, device)),
             },
             head,
             input,
@@ -179,16 +183,38 @@ impl Policy {
         nn::to_vec(self.log_std())
     }
 
+    /// The network input: `x`, normalised when the policy normalises observations.
+    fn input(&self, x: Tensor<2>) -> Tensor<2> {
+        match &self.net.obs_norm {
+            Some(norm) => norm.apply(x),
+            None => x,
+        }
+    }
+
+    /// Merges the rows of `x` (raw policy inputs, `[rows, input]`) into the observation
+    /// statistics (no-op without normalisation).
+    pub fn update_obs_stats(&mut self, x: &[f32]) {
+        let device = self.device.clone();
+        if let Some(norm) = &mut self.net.obs_norm {
+            norm.update(x, &device);
+        }
+    }
+
+    /// The observation statistics (mean, variance, count), if the policy normalises.
+    pub fn obs_stats(&self) -> Option<(Vec<f32>, Vec<f32>, f64)> {
+        self.net.obs_norm.as_ref().map(ObsNorm::stats)
+    }
+
     /// `V(x)`: `[batch, input] -> [batch]`.
     pub fn value(&self, x: Tensor<2>) -> Tensor<1> {
-        let v = self.net.critic.forward(x);
+        let v = self.net.critic.forward(self.input(x));
         let [b, _] = v.dims();
         v.reshape([b])
     }
 
     /// The actor network's output: Gaussian means (tanh-bounded if configured) or logits.
     fn actor_out(&self, x: Tensor<2>) -> Tensor<2> {
-        let out = self.net.actor.forward(x); // [batch, outputs]
+        let out = self.net.actor.forward(self.input(x)); // [batch, outputs]
         match self.head {
             PolicyHead::Gaussian { .. } if self.tanh_mean => out.tanh(),
             _ => out,
@@ -331,5 +357,58 @@ pub fn policy_shape(
                 ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
             },
         ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jsae_embedder::nn::{BurnDevice, DeviceKind};
+    use rand::SeedableRng;
+
+    #[test]
+    fn observation_statistics_travel_with_the_weights() {
+        let device = DeviceKind::Flex.device();
+        let config = PpoConfig {
+            normalize_obs: true,
+            ..PpoConfig::default()
+        };
+        let head = PolicyHead::Gaussian { dim: 2 };
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let mut policy = Policy::new(&config, 3, head, &mut rng, &device);
+        let x: Vec<f32> = (0..300).map(|i| (i % 7) as f32 * 10.0 + 100.0).collect();
+        policy.update_obs_stats(&x);
+        let (mean, var, count) = policy.obs_stats().expect("normalises");
+        assert!(mean.iter().all(|&m| m > 100.0) && var.iter().all(|&v| v > 100.0));
+        assert!((count - 100.0).abs() < 1e-2);
+
+        let bytes = policy.to_bytes().expect("serialises");
+        let mut fresh = Policy::new(&config, 3, head, &mut rng, &device);
+        assert_ne!(fresh.obs_stats().map(|s| s.0), Some(mean.clone()));
+        fresh.load_bytes(&bytes).expect("loads");
+        assert_eq!(fresh.obs_stats().map(|s| (s.0, s.1)), Some((mean, var)));
+
+        let probe = vec![130.0, 110.0, 150.0];
+        let act = |p: &Policy| {
+            let (mut a, mut lp) = (ActionBatch::empty(&head.action_space()), Vec::new());
+            p.act(
+                &probe,
+                true,
+                &mut ChaCha8Rng::seed_from_u64(0),
+                &mut a,
+                &mut lp,
+            );
+            a
+        };
+        let loaded = {
+            let mut p = Policy::new(&config, 3, head, &mut rng, &device);
+            p.load_bytes(&bytes).expect("loads");
+            p
+        };
+        assert_eq!(
+            act(&policy),
+            act(&loaded),
+            "same weights and statistics, same action"
+        );
     }
 }

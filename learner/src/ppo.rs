@@ -356,6 +356,8 @@ impl Learner {
             self.reward_scaler.as_mut(),
         );
         let metrics = self.optimise(&batch, lr);
+        // After the update: the actors' next rollouts use these statistics with these weights.
+        self.policy.update_obs_stats(&batch.x);
         self.version += 1;
         self.updates += 1;
         let episodes = std::mem::take(&mut self.episodes);

@@ -35,12 +35,31 @@ enum Command {
         /// Only the transport measurements.
         #[arg(long)]
         transport: bool,
+        /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
+        /// env, the actor with batched inference, Gymnasium).
+        #[arg(long)]
+        mujoco: bool,
+        /// Environments per actor in the MuJoCo actor measurement.
+        #[arg(long, default_value_t = 16)]
+        envs: usize,
     },
     /// Draw the plots of a run directory (one the services wrote, for example by hand).
     Plot {
         /// The run directory (holding config.toml and metrics.csv).
         #[arg(long)]
         out: PathBuf,
+    },
+    /// Replay an initial state and actions through a MuJoCo environment (parity check).
+    EnvReplay {
+        /// half-cheetah or ant.
+        #[arg(long, value_enum)]
+        env: EnvName,
+        /// JSON lines: `{"qpos": [...], "qvel": [...]}`, then `{"action": [...]}` per step.
+        #[arg(long)]
+        input: PathBuf,
+        /// JSON lines written: `{"obs": [...], "reward": r, "terminated": b}` per step.
+        #[arg(long)]
+        output: PathBuf,
     },
     /// The embedder service (as `jsae-embedder`).
     Embedder(jsae_embedder::service::EmbedderArgs),
@@ -157,7 +176,16 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Command::Bench { quick, transport } => {
+        Command::Bench {
+            quick,
+            transport,
+            mujoco,
+            envs,
+        } => {
+            if mujoco {
+                print!("{}", jsae_actor::bench_mujoco::run(envs.max(1), quick));
+                return ExitCode::SUCCESS;
+            }
             if !transport {
                 print!("{}", jsae_actor::bench::run(quick));
             }
@@ -183,6 +211,24 @@ fn main() -> ExitCode {
                 Err(e) => {
                     eprintln!("jsae plot: {}: {e}", out.display());
                     ExitCode::FAILURE
+                }
+            }
+        }
+        Command::EnvReplay { env, input, output } => {
+            let run = || -> Result<usize, String> {
+                let reader = std::fs::File::open(&input)
+                    .map(std::io::BufReader::new)
+                    .map_err(|e| format!("{}: {e}", input.display()))?;
+                let writer = std::fs::File::create(&output)
+                    .map(std::io::BufWriter::new)
+                    .map_err(|e| format!("{}: {e}", output.display()))?;
+                jsae_actor::replay::replay(env, reader, writer).map_err(|e| e.to_string())
+            };
+            match run() {
+                Ok(_) => ExitCode::SUCCESS,
+                Err(reason) => {
+                    eprintln!("jsae env-replay: {reason}");
+                    ExitCode::from(2)
                 }
             }
         }

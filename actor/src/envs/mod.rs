@@ -4,6 +4,7 @@
 
 mod geometry;
 pub mod gridworld;
+pub mod mujoco;
 pub mod slotmachine;
 
 use jsae_proto::{ActionSpace, StateBatch, StateSpace};
@@ -11,8 +12,9 @@ use rand_chacha::ChaCha8Rng;
 
 pub use gridworld::Gridworld;
 pub use jsae_proto::settings::{
-    EnvConfig, EnvName, GridworldConfig, SlotmachineConfig, validate_env_config,
+    EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
 };
+pub use mujoco::{MujocoEnv, Robot};
 pub use slotmachine::Slotmachine;
 
 /// An action handed to an environment.
@@ -60,6 +62,8 @@ pub fn make_env(name: EnvName, config: &EnvConfig) -> Box<dyn Env> {
         EnvName::Gridworld => Box::new(Gridworld::new(config.gridworld.clone(), false)),
         EnvName::GridworldDiscrete => Box::new(Gridworld::new(config.gridworld.clone(), true)),
         EnvName::Slotmachine => Box::new(Slotmachine::new(config.slotmachine.clone())),
+        EnvName::HalfCheetah => Box::new(MujocoEnv::new(Robot::HalfCheetah, &config.mujoco)),
+        EnvName::Ant => Box::new(MujocoEnv::new(Robot::Ant, &config.mujoco)),
     }
 }
 
@@ -79,6 +83,8 @@ mod tests {
                 EnvName::Gridworld,
                 EnvName::GridworldDiscrete,
                 EnvName::Slotmachine,
+                EnvName::HalfCheetah,
+                EnvName::Ant,
             ] {
                 let env = make_env(name, &config);
                 let (states, actions) = name.spaces(&config);

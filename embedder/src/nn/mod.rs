@@ -1,5 +1,5 @@
 //! Model building blocks shared by the embedder and the learner: the device choice, seeded
-//! initialisation, a tanh MLP, host <-> tensor conversion, global gradient-norm clipping, and
+//! initialisation, a tanh MLP, input normalisation, host <-> tensor conversion, global gradient-norm clipping, and
 //! weight snapshots as bytes.
 
 mod clip;
@@ -7,9 +7,11 @@ mod device;
 mod init;
 mod io;
 mod mlp;
+mod obs_norm;
 
 pub use clip::clip_global_grad_norm;
 pub use device::{BurnDevice, DeviceKind};
 pub use init::{linear_from_host, orthogonal, seeded_linear};
 pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};
 pub use mlp::{Mlp, MlpConfig};
+pub use obs_norm::ObsNorm;

@@ -41,6 +41,9 @@ pub struct EmbeddingConfig {
     pub update_steps: usize,
     /// Continuous updates: learning rate (usually below the pre-training one).
     pub update_lr: f64,
+    /// Real-valued states: phi sees them normalised by running mean and variance (part of
+    /// the embedding's weights and snapshots), and T predicts normalised next states.
+    pub normalize_states: bool,
 }
 
 impl Default for EmbeddingConfig {
@@ -60,6 +63,7 @@ impl Default for EmbeddingConfig {
             update_every: 20_480,
             update_steps: 50,
             update_lr: 0.003,
+            normalize_states: false,
         }
     }
 }

@@ -16,6 +16,10 @@ pub enum EnvName {
     GridworldDiscrete,
     /// Four reels, bins^4 actions.
     Slotmachine,
+    /// MuJoCo HalfCheetah, as Gymnasium's HalfCheetah-v5 with default arguments.
+    HalfCheetah,
+    /// MuJoCo Ant, as Gymnasium's Ant-v5 with default arguments.
+    Ant,
 }
 
 impl EnvName {
@@ -25,7 +29,14 @@ impl EnvName {
             Self::Gridworld => "gridworld",
             Self::GridworldDiscrete => "gridworld-discrete",
             Self::Slotmachine => "slotmachine",
+            Self::HalfCheetah => "half-cheetah",
+            Self::Ant => "ant",
         }
+    }
+
+    /// Whether this is a MuJoCo environment.
+    pub fn is_mujoco(self) -> bool {
+        matches!(self, Self::HalfCheetah | Self::Ant)
     }
 }
 
@@ -37,6 +48,22 @@ pub struct EnvConfig {
     pub gridworld: GridworldConfig,
     /// The slotmachine.
     pub slotmachine: SlotmachineConfig,
+    /// HalfCheetah and Ant.
+    pub mujoco: MujocoConfig,
+}
+
+/// MuJoCo settings. Everything else is fixed to Gymnasium v5's defaults.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct MujocoConfig {
+    /// Time limit in steps (Gymnasium's `max_episode_steps`: 1000).
+    pub max_steps: u32,
+}
+
+impl Default for MujocoConfig {
+    fn default() -> Self {
+        Self { max_steps: 1000 }
+    }
 }
 
 /// Gridworld settings.
@@ -124,6 +151,9 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     if !(1..=4).contains(&s.threshold) || s.horizon == 0 {
         return Err("slotmachine.threshold must be in 1..=4 and horizon positive".into());
     }
+    if config.mujoco.max_steps == 0 {
+        return Err("mujoco.max_steps must be positive".into());
+    }
     Ok(())
 }
 
@@ -153,6 +183,18 @@ impl EnvName {
                     n: (config.slotmachine.bins as usize).pow(4),
                 },
             ),
+            // qpos without x (8) + qvel (9)
+            Self::HalfCheetah => (StateSpace::Real { dim: 17 }, unit_box(6)),
+            // qpos without x, y (13) + qvel (14) + contact forces of 13 bodies (78)
+            Self::Ant => (StateSpace::Real { dim: 105 }, unit_box(8)),
         }
+    }
+}
+
+fn unit_box(dim: usize) -> ActionSpace {
+    ActionSpace::Continuous {
+        dim,
+        low: vec![-1.0; dim],
+        high: vec![1.0; dim],
     }
 }

@@ -46,6 +46,9 @@ pub struct PpoConfig {
     pub tanh_mean: bool,
     /// Scale rewards by a running estimate of the discounted return's std.
     pub reward_scaling: bool,
+    /// Normalise the policy input by running mean and variance (clipped to +-10); the
+    /// statistics are part of the policy's weights, snapshots and checkpoints.
+    pub normalize_obs: bool,
     /// Fragments produced by a policy more than this many versions old are dropped.
     pub max_policy_lag: u64,
 }
@@ -71,6 +74,7 @@ impl Default for PpoConfig {
             init_log_std: 0.0,
             tanh_mean: false,
             reward_scaling: true,
+            normalize_obs: false,
             max_policy_lag: 4,
         }
     }

@@ -254,11 +254,35 @@ impl TrainConfig {
             ppo.gamma = 0.9;
             ppo.ent_coef = 0.0;
         }
+        let mut env_steps = 500_000;
+        if env.is_mujoco() {
+            // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
+            // 16 envs x 128; 32 minibatches of 64; clipped value loss), with observation
+            // normalisation in the policy and, for JSAE, in phi.
+            env_steps = 1_000_000;
+            ppo.normalize_obs = true;
+            ppo.minibatch_size = 64;
+            ppo.clip_value_loss = true;
+            ppo.ent_coef = 0.0;
+            embedding.normalize_states = true;
+            embedding.transition_hidden = 128;
+            embedding.pretrain_epochs = 20;
+            embedding.update_every = 50_000;
+            (embedding.state_dim, embedding.action_dim) = match env {
+                EnvName::Ant => (32, 8),
+                _ => (20, 6),
+            };
+            if algo == Algo::Jsae {
+                // The action embeddings lie in (-1, 1)^d and f is fitted only there: a
+                // starting std of 1 would put most samples outside (paper's grid: 0.3-1.0).
+                ppo.init_log_std = -0.5;
+            }
+        }
         Self {
             env,
             algo,
             seed: 1,
-            env_steps: 500_000,
+            env_steps,
             actors: 1,
             envs_per_actor: 16,
             rollout_len: 128,
