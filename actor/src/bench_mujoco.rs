@@ -3,7 +3,7 @@
 //! (a) our environment stepped with random actions (no inference);
 //! (b) the actor worker with batched `phi -> pi_i -> f` inference across K environments
 //!     (PPO: policy only; JSAE: phi, the Gaussian over E, the decoder f), rollouts as in
-//!     training;
+//!     training, stepping on one thread, and for JSAE also on one thread per core;
 //! (c) a raw mujoco-rs loop: set ctrl, `mj_step` x 5, nothing else;
 //! (d) Gymnasium's Python step rate (scripts/python/gymnasium_steprate.py in the reference
 //!     venv; skipped, and said so, where the venv cannot be made).
@@ -27,10 +27,14 @@ use crate::envs::{ActionRef, Env, EnvName, MujocoConfig, MujocoEnv, Robot};
 pub struct MujocoRates {
     /// (a) our env, random actions.
     pub env_random: f64,
-    /// (b) actor with PPO inference.
+    /// (b) actor with PPO inference, stepping on one thread.
     pub actor_ppo: f64,
-    /// (b) actor with JSAE inference.
+    /// (b) actor with JSAE inference, stepping on one thread.
     pub actor_jsae: f64,
+    /// (b) actor with JSAE inference, stepping on one thread per core.
+    pub actor_jsae_cores: f64,
+    /// Threads of the last measurement.
+    pub cores: usize,
     /// (c) raw mujoco-rs.
     pub raw: f64,
     /// (d) Gymnasium (None: not measured).
@@ -80,8 +84,9 @@ fn env_rate(robot: Robot, steps: usize) -> f64 {
     steps as f64 / t.elapsed().as_secs_f64()
 }
 
-fn actor_rate(env: EnvName, algo: Algo, envs: usize, steps: usize) -> f64 {
+fn actor_rate(env: EnvName, algo: Algo, envs: usize, threads: usize, steps: usize) -> f64 {
     let mut config = TrainConfig::defaults(env, algo);
+    config.step_threads = threads;
     config.embedding.pretrain_transitions = 4_096;
     config.embedding.pretrain_epochs = 2;
     let mut worker = trained_worker(&config, envs, DeviceKind::Flex);
@@ -130,8 +135,10 @@ pub fn bench_robot(env: EnvName, envs: usize, quick: bool) -> MujocoRates {
     MujocoRates {
         raw: raw_rate(robot, steps),
         env_random: env_rate(robot, steps),
-        actor_ppo: actor_rate(env, Algo::Ppo, envs, steps),
-        actor_jsae: actor_rate(env, Algo::Jsae, envs, steps),
+        actor_ppo: actor_rate(env, Algo::Ppo, envs, 1, steps),
+        actor_jsae: actor_rate(env, Algo::Jsae, envs, 1, steps),
+        actor_jsae_cores: actor_rate(env, Algo::Jsae, envs, 0, steps),
+        cores: crate::envs::step_threads(0),
         gymnasium: match gymnasium_rate(gym_id, steps) {
             Ok(r) => Some(r),
             Err(e) => {
@@ -145,40 +152,48 @@ pub fn bench_robot(env: EnvName, envs: usize, quick: bool) -> MujocoRates {
 /// Runs both robots and formats the table.
 pub fn run(envs: usize, quick: bool) -> String {
     let mut out = format!(
-        "MuJoCo env-steps/s on one core (frame_skip 5; actor: {envs} envs, batched inference on flex)\n"
+        "MuJoCo env-steps/s (frame_skip 5; actor: {envs} envs, batched inference on flex)\n"
     );
+    let rates: Vec<(EnvName, MujocoRates)> = [EnvName::HalfCheetah, EnvName::Ant]
+        .into_iter()
+        .map(|env| (env, bench_robot(env, envs, quick)))
+        .collect();
+    let cores = rates.first().map_or(1, |r| r.1.cores);
     out.push_str(&format!(
-        "{:<13} {:>10} {:>10} {:>10} {:>10} {:>10} | {:>7} {:>7} {:>7} {:>8} {:>8}\n",
-        "env",
-        "(c) raw",
-        "(a) env",
-        "(b) ppo",
-        "(b) jsae",
-        "(d) gym",
-        "a/c",
-        "ppo/c",
-        "jsae/c",
-        "ppo/gym",
-        "jsae/gym"
+        "{:<13} {:>9} {:>9} {:>9} {:>9} {:>11} {:>9}\n",
+        "env", "(c) raw", "(a) env", "(b) ppo", "(b) jsae", "(b) jsae xN", "(d) gym"
     ));
-    for env in [EnvName::HalfCheetah, EnvName::Ant] {
-        let r = bench_robot(env, envs, quick);
-        let gym = r.gymnasium.unwrap_or(f64::NAN);
+    for (env, r) in &rates {
         out.push_str(&format!(
-            "{:<13} {:>10.0} {:>10.0} {:>10.0} {:>10.0} {:>10.0} | {:>7.2} {:>7.2} {:>7.2} {:>8.2} {:>8.2}\n",
+            "{:<13} {:>9.0} {:>9.0} {:>9.0} {:>9.0} {:>11.0} {:>9.0}\n",
             env.as_str(),
             r.raw,
             r.env_random,
             r.actor_ppo,
             r.actor_jsae,
-            gym,
+            r.actor_jsae_cores,
+            r.gymnasium.unwrap_or(f64::NAN)
+        ));
+    }
+    out.push_str(&format!(
+        "{:<13} {:>7} {:>7} {:>8} {:>9} {:>9} {:>10}\n",
+        "ratios", "a/c", "ppo/c", "jsae/c", "ppo/gym", "jsae/gym", "jsaexN/gym"
+    ));
+    for (env, r) in &rates {
+        let gym = r.gymnasium.unwrap_or(f64::NAN);
+        out.push_str(&format!(
+            "{:<13} {:>7.2} {:>7.2} {:>8.2} {:>9.2} {:>9.2} {:>10.2}\n",
+            env.as_str(),
             r.env_random / r.raw,
             r.actor_ppo / r.raw,
             r.actor_jsae / r.raw,
             r.actor_ppo / gym,
             r.actor_jsae / gym,
+            r.actor_jsae_cores / gym,
         ));
     }
-    out.push_str("(a) our env, random actions; (b) actor rollouts with inference; (c) ctrl + mj_step x5 only; (d) Gymnasium v5, Python, random actions\n");
+    out.push_str(&format!(
+        "(c) ctrl + mj_step x5 only, one thread; (a) our env, random actions, one thread; (b) actor rollouts with inference, stepping on one thread (xN: on {cores} threads, one per core); (d) Gymnasium v5, Python, one env, random actions\n"
+    ));
     out
 }

@@ -13,7 +13,7 @@ use jsae_proto::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::envs::{ActionRef, Env, make_env};
+use crate::envs::{ActionRef, Env, Step, make_env, step_all, step_threads};
 use jsae_proto::settings::TrainConfig;
 
 /// Why a snapshot could not be applied.
@@ -273,8 +273,8 @@ impl ActorWorker {
         }
     }
 
-    /// Steps every environment `steps` times.
-    pub fn collect(&mut self, steps: usize) -> Rollout {
+    /// Steps every environment `rollout_steps` times.
+    pub fn collect(&mut self, rollout_steps: usize) -> Rollout {
         let k = self.envs.len();
         let acting = self.acting();
         let record_transitions = self.config.algo.uses_embedding();
@@ -296,12 +296,12 @@ impl ActorWorker {
                 embedding_version: self.embedding_version(),
                 actor_env_steps: 0,
                 x_dim,
-                x: Vec::with_capacity(steps * x_dim),
+                x: Vec::with_capacity(rollout_steps * x_dim),
                 actions: ActionBatch::empty(&head_space),
-                logp: Vec::with_capacity(steps),
-                rewards: Vec::with_capacity(steps),
-                terminated: Vec::with_capacity(steps),
-                truncated: Vec::with_capacity(steps),
+                logp: Vec::with_capacity(rollout_steps),
+                rewards: Vec::with_capacity(rollout_steps),
+                terminated: Vec::with_capacity(rollout_steps),
+                truncated: Vec::with_capacity(rollout_steps),
                 truncated_next_x: Vec::new(),
                 last_next_x: Vec::new(),
                 episodes: Vec::new(),
@@ -316,7 +316,9 @@ impl ActorWorker {
         let mut cut_x = Vec::new();
         let mut cut_envs = Vec::new();
         let mut after = StateBatch::empty(&self.states);
-        for _ in 0..steps {
+        let threads = step_threads(self.config.step_threads);
+        let mut steps = vec![Step::default(); k];
+        for _ in 0..rollout_steps {
             policy_actions.clear();
             env_actions.clear();
             logp.clear();
@@ -332,13 +334,8 @@ impl ActorWorker {
             cut_states.clear();
             cut_envs.clear();
             after.clear();
-            for i in 0..k {
-                let step = match &env_actions {
-                    ActionBatch::Discrete(a) => self.envs[i].step(ActionRef::Discrete(a[i])),
-                    ActionBatch::Continuous { dim, data } => {
-                        self.envs[i].step(ActionRef::Continuous(&data[i * dim..(i + 1) * dim]))
-                    }
-                };
+            step_all(&mut self.envs, &env_actions, &mut steps, threads);
+            for (i, &step) in steps.iter().enumerate() {
                 self.envs[i].push_state(&mut next);
                 let bonus = if acting {
                     self.exploration_bonus(&next, i)

@@ -7,7 +7,7 @@ pub mod gridworld;
 pub mod mujoco;
 pub mod slotmachine;
 
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
 pub use gridworld::Gridworld;
@@ -27,7 +27,7 @@ pub enum ActionRef<'a> {
 }
 
 /// What one step produced.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
 pub struct Step {
     /// The reward.
     pub reward: f64,
@@ -54,6 +54,52 @@ pub trait Env: Send {
     fn step(&mut self, action: ActionRef<'_>) -> Step;
     /// Appends the current state to `out`.
     fn push_state(&self, out: &mut StateBatch);
+}
+
+/// Steps `envs[i]` with row `i` of `actions` into `out[i]`, on up to `threads` scoped
+/// threads (contiguous chunks of environments; 1: on the calling thread). Environments own
+/// their state, so the result does not depend on `threads`.
+pub fn step_all(
+    envs: &mut [Box<dyn Env>],
+    actions: &ActionBatch,
+    out: &mut [Step],
+    threads: usize,
+) {
+    let step_one = |env: &mut Box<dyn Env>, i: usize| match actions {
+        ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[i])),
+        ActionBatch::Continuous { dim, data } => {
+            env.step(ActionRef::Continuous(&data[i * dim..(i + 1) * dim]))
+        }
+    };
+    let threads = threads.clamp(1, envs.len().max(1));
+    if threads == 1 {
+        for (i, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
+            *o = step_one(env, i);
+        }
+        return;
+    }
+    let chunk = envs.len().div_ceil(threads);
+    std::thread::scope(|scope| {
+        for (c, (envs, out)) in envs
+            .chunks_mut(chunk)
+            .zip(out.chunks_mut(chunk))
+            .enumerate()
+        {
+            scope.spawn(move || {
+                for (j, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
+                    *o = step_one(env, c * chunk + j);
+                }
+            });
+        }
+    });
+}
+
+/// Threads for `step_all`: `configured`, or one per core when 0.
+pub fn step_threads(configured: usize) -> usize {
+    match configured {
+        0 => std::thread::available_parallelism().map_or(1, usize::from),
+        n => n,
+    }
 }
 
 /// Builds the named environment.

@@ -56,6 +56,9 @@ pub struct TrainConfig {
     pub actors: usize,
     /// Environments per actor, stepped together with batched inference.
     pub envs_per_actor: usize,
+    /// Threads an actor steps its environments on (0: one per core, at most one per
+    /// environment). Worth it where a step costs far more than a thread hand-off (MuJoCo).
+    pub step_threads: usize,
     /// Steps per environment per rollout fragment.
     pub rollout_len: usize,
     /// Separate processes: rollouts an actor may send under one policy version before it
@@ -125,6 +128,8 @@ pub struct ConfigFile {
     pub actors: Option<usize>,
     /// See [`TrainConfig`].
     pub envs_per_actor: Option<usize>,
+    /// See [`TrainConfig`].
+    pub step_threads: Option<usize>,
     /// See [`TrainConfig`].
     pub rollout_len: Option<usize>,
     /// See [`TrainConfig`].
@@ -275,7 +280,9 @@ impl TrainConfig {
             if algo == Algo::Jsae {
                 // The action embeddings lie in (-1, 1)^d and f is fitted only there: a
                 // starting std of 1 would put most samples outside (paper's grid: 0.3-1.0).
-                ppo.init_log_std = -0.5;
+                // Ant at 0.6 learned to fall at once (its control cost outweighs the healthy
+                // reward for large actions); at 0.37 it walks (README, results).
+                ppo.init_log_std = if env == EnvName::Ant { -1.0 } else { -0.5 };
             }
         }
         Self {
@@ -285,6 +292,7 @@ impl TrainConfig {
             env_steps,
             actors: 1,
             envs_per_actor: 16,
+            step_threads: if env.is_mujoco() { 0 } else { 1 },
             rollout_len: 128,
             rollouts_per_policy: 1,
             policy_wait_ms: 3000,
@@ -327,6 +335,7 @@ impl TrainConfig {
         c.env_steps = parsed.env_steps.unwrap_or(c.env_steps);
         c.actors = parsed.actors.unwrap_or(c.actors);
         c.envs_per_actor = parsed.envs_per_actor.unwrap_or(c.envs_per_actor);
+        c.step_threads = parsed.step_threads.unwrap_or(c.step_threads);
         c.rollout_len = parsed.rollout_len.unwrap_or(c.rollout_len);
         c.rollouts_per_policy = parsed.rollouts_per_policy.unwrap_or(c.rollouts_per_policy);
         c.policy_wait_ms = parsed.policy_wait_ms.unwrap_or(c.policy_wait_ms);
