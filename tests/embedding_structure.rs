@@ -38,7 +38,7 @@ fn neighbour_vs_random(table: &[f32], d: usize, motions: &[[f64; 2]], k: usize) 
 /// Pre-trains on uniformly random transitions as the embedder does; returns the 5-NN and the
 /// random-pair motion distances of the learned action embeddings.
 fn pretrained_structure(config: &TrainConfig) -> (f64, f64) {
-    let mut worker = ActorWorker::new(config, 0, DeviceKind::Flex);
+    let mut worker = ActorWorker::new(config, 0, DeviceKind::Flex).expect("environments");
     let (states, actions) = (worker.state_space().clone(), worker.action_space().clone());
     let mut trainer = EmbedderTrainer::new(
         config.embedding.clone(),

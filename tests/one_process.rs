@@ -102,6 +102,9 @@ fn both_algorithms_train_on_every_environment_and_on_both_devices() {
         (EnvName::HalfCheetah, Algo::Jsae, DeviceKind::Flex),
         (EnvName::HalfCheetah, Algo::Ppo, DeviceKind::Flex),
         (EnvName::Ant, Algo::Jsae, DeviceKind::Flex),
+        // the recommender on the real Instacart sample (fetched at build time)
+        (EnvName::Recommender, Algo::Jsae, DeviceKind::Flex),
+        (EnvName::Recommender, Algo::Ppo, DeviceKind::Ndarray),
     ] {
         let dir = temp_dir(&format!(
             "{}-{}-{}",

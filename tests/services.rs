@@ -555,3 +555,74 @@ async fn a_restarted_embedder_continues_its_version_line() {
     assert_eq!(first_embedding_version(&second.url).await, 1);
     second.stop().await.expect("stops cleanly");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
+    use jsae_actor::recsys::service::{Recommender, WeightSources};
+    use jsae_proto::settings::SessionSource;
+    let mut c = config(EnvName::Recommender, Algo::Jsae, "recommender-live");
+    c.env_steps = 12_288;
+    let r = &mut c.environment.recommender;
+    r.source = SessionSource::Synthetic;
+    r.top_n = 50;
+    r.synthetic.items = 40;
+    r.synthetic.sessions = 1_000;
+    let embedder = start_embedder(&c).await;
+    let learner = start_learner(&c, Some(embedder.url.clone())).await;
+    let rec = std::sync::Arc::new(
+        Recommender::new(&c, jsae_embedder::nn::DeviceKind::Flex).expect("recommender"),
+    );
+    let (listener, rec_url) = bind().await;
+    let (stop_rec, signal) = stop_signal();
+    let sources = WeightSources {
+        learner: Some(learner.url.clone()),
+        embedder: Some(embedder.url.clone()),
+        run: None,
+    };
+    let served = tokio::spawn(jsae_actor::recsys::service::serve(
+        rec, listener, sources, signal,
+    ));
+    let mut client = pb::recommender_client::RecommenderClient::new(channel(&rec_url).await);
+    let ask = pb::RecommendRequest {
+        history: vec!["item-0".into(), "item-1".into()],
+        k: 5,
+    };
+    let before = client
+        .recommend(ask.clone())
+        .await
+        .expect_err("no policy yet");
+    assert_eq!(before.code(), Code::Unavailable, "{before:?}");
+
+    let actor = start_actor(&c, 1, Some(&embedder.url), &learner.url);
+    let mut policy_versions = Vec::new();
+    let mut embedding_versions = Vec::new();
+    while !actor.handle.is_finished() {
+        if let Ok(r) = client.recommend(ask.clone()).await {
+            let r = r.into_inner();
+            assert_eq!(r.items.len(), 5);
+            if policy_versions.last() != Some(&r.policy_version) {
+                policy_versions.push(r.policy_version);
+            }
+            if embedding_versions.last() != Some(&r.embedding_version) {
+                embedding_versions.push(r.embedding_version);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    actor.join().await.expect("actor");
+    learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    embedder.stop().await.expect("embedder stops");
+    let _ = stop_rec.send(());
+    served
+        .await
+        .expect("task")
+        .expect("recommender stops cleanly");
+    assert!(policy_versions.len() >= 3, "{policy_versions:?}");
+    assert!(increasing(&policy_versions), "{policy_versions:?}");
+    assert!(embedding_versions.len() >= 2, "{embedding_versions:?}");
+    assert!(increasing(&embedding_versions), "{embedding_versions:?}");
+}

@@ -80,7 +80,7 @@ fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: De
 pub(crate) fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKind) -> ActorWorker {
     let mut c = config.clone();
     c.envs_per_actor = envs;
-    let mut worker = ActorWorker::new(&c, 0, device);
+    let mut worker = ActorWorker::new(&c, 0, device).expect("benchmark environments need no data");
     let (s, a) = (worker.state_space().clone(), worker.action_space().clone());
     let mut emb = EmbedderTrainer::new(c.embedding.clone(), &s, &a, c.seed, device);
     let rollout = worker.collect(c.embedding.pretrain_transitions.div_ceil(envs));

@@ -31,7 +31,8 @@ pub struct TransportRate {
 }
 
 fn transition_batches(config: &TrainConfig, n: usize) -> Vec<TransitionBatch> {
-    let mut worker = ActorWorker::new(config, 0, config.device);
+    let mut worker =
+        ActorWorker::new(config, 0, config.device).expect("benchmark environments need no data");
     (0..n)
         .map(|_| worker.collect(config.rollout_len).transitions)
         .collect()

@@ -14,11 +14,14 @@
 
 pub mod bench;
 pub mod bench_mujoco;
+pub mod bench_recommender;
 pub mod bench_transport;
 pub mod envs;
+pub mod health;
 pub mod launch;
 pub mod plot;
 pub mod progress;
+pub mod recsys;
 pub mod replay;
 pub mod service;
 pub mod train;

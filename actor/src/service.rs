@@ -139,7 +139,7 @@ fn stepping_loop(
     links: &Links,
     stop: &AtomicBool,
 ) -> anyhow::Result<ActorReport> {
-    let mut worker = ActorWorker::new(config, options.id, config.device);
+    let mut worker = ActorWorker::new(config, options.id, config.device)?;
     let mut report = ActorReport {
         exit: ActorExit::Stopped,
         env_steps: 0,

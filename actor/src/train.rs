@@ -76,7 +76,7 @@ pub fn train_one_process(
 
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
-        .collect();
+        .collect::<Result<_, _>>()?;
     let (states, actions) = (
         actors[0].state_space().clone(),
         actors[0].action_space().clone(),

@@ -27,6 +27,9 @@ pub enum WorkerError {
         /// The cause.
         source: jsae_embedder::nn::RecordError,
     },
+    /// The environment could not be made (the recommender's data).
+    #[error("environment: {0}")]
+    Env(#[from] crate::envs::RecsysError),
 }
 
 /// What one rollout produced.
@@ -58,6 +61,7 @@ pub struct ActorWorker {
     policy_version: Option<u64>,
     embedding: Option<Embedding>,
     running: Vec<Running>,
+    eval_env: Option<Box<dyn Env>>,
     visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
@@ -82,10 +86,11 @@ fn actor_seed(seed: u64, id: u64, stream: u64) -> u64 {
 
 impl ActorWorker {
     /// An actor with `config.envs_per_actor` environments, all reset.
-    pub fn new(config: &TrainConfig, id: u64, device: DeviceKind) -> Self {
+    pub fn new(config: &TrainConfig, id: u64, device: DeviceKind) -> Result<Self, WorkerError> {
         let mut envs: Vec<Box<dyn Env>> = (0..config.envs_per_actor)
             .map(|_| make_env(config.env, &config.environment))
-            .collect();
+            .collect::<Result<_, _>>()?;
+        let eval_env = make_env(config.env, &config.environment)?;
         let mut env_rngs: Vec<ChaCha8Rng> = (0..envs.len())
             .map(|k| ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1000 + k as u64)))
             .collect();
@@ -100,9 +105,10 @@ impl ActorWorker {
         let device = device.device();
         let mut init_rng = ChaCha8Rng::seed_from_u64(0);
         let policy = Policy::new(&config.ppo, input, head, &mut init_rng, &device);
-        Self {
+        Ok(Self {
             id,
             config: config.clone(),
+            eval_env: Some(eval_env),
             running: vec![Running::default(); envs.len()],
             visits: std::collections::HashMap::new(),
             envs,
@@ -116,7 +122,7 @@ impl ActorWorker {
             current,
             env_steps: 0,
             device,
-        }
+        })
     }
 
     /// The actor's id.
@@ -411,7 +417,10 @@ impl ActorWorker {
     /// Runs `episodes` evaluation episodes with the deterministic policy (mean action, then
     /// f) on fresh environments seeded with `seed`.
     pub fn evaluate(&mut self, episodes: usize, seed: u64) -> EvalReport {
-        let mut env = make_env(self.config.env, &self.config.environment);
+        let mut env = match self.eval_env.take() {
+            Some(env) => env,
+            None => unreachable!("evaluate puts the environment back"),
+        };
         let mut env_rng = ChaCha8Rng::seed_from_u64(seed);
         let head_space = self.policy.head().action_space();
         let mut report = EvalReport {
@@ -451,6 +460,7 @@ impl ActorWorker {
                 }
             }
         }
+        self.eval_env = Some(env);
         report
     }
 }

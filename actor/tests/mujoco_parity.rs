@@ -3,28 +3,12 @@
 //! [-1.5, 1.5]; `jsae env-replay` replays the same initial states and actions; obs, reward and
 //! terminated must agree to 1e-9 relative, step for step.
 
-use std::path::{Path, PathBuf};
+mod common;
+
+use std::path::Path;
 use std::process::Command;
 
-fn repo_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("the actor crate lives in the workspace")
-        .to_path_buf()
-}
-
-/// The reference venv's python (created on first use).
-fn reference_python() -> PathBuf {
-    let out = Command::new(repo_root().join("scripts/setup-python.sh"))
-        .output()
-        .expect("scripts/setup-python.sh runs");
-    assert!(
-        out.status.success(),
-        "scripts/setup-python.sh failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
-}
+use common::{repo_root, venv_python as reference_python};
 
 fn read_lines(path: &Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(path)

@@ -266,6 +266,21 @@ impl Policy {
         }
     }
 
+    /// The actor network's outputs for every row of `x` (`[batch, input]`), row-major: the
+    /// Gaussian's mean (`[batch, dim]`) or the categorical's logits (`[batch, n]`).
+    pub fn head_outputs(&self, x: &[f32]) -> Vec<f32> {
+        let batch = x.len() / self.input.max(1);
+        if batch == 0 {
+            return Vec::new();
+        }
+        nn::to_vec(self.actor_out(nn::tensor2(
+            x[..batch * self.input].to_vec(),
+            batch,
+            self.input,
+            &self.device,
+        )))
+    }
+
     /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of
     /// `x` (`[batch, input]`), appending them to `actions` and their log-probabilities to
     /// `logp`.
@@ -277,12 +292,10 @@ impl Policy {
         actions: &mut ActionBatch,
         logp: &mut Vec<f32>,
     ) {
-        let batch = x.len() / self.input.max(1);
-        if batch == 0 {
+        let out = self.head_outputs(x);
+        if out.is_empty() {
             return;
         }
-        let out =
-            nn::to_vec(self.actor_out(nn::tensor2(x.to_vec(), batch, self.input, &self.device)));
         match (self.head, actions) {
             (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
                 let log_std = self.log_std_values();

@@ -39,6 +39,10 @@ enum Command {
         /// env, the actor with batched inference, Gymnasium).
         #[arg(long)]
         mujoco: bool,
+        /// Only the Recommender service's latency (p50, p99) and throughput at concurrency
+        /// 64 over loopback gRPC.
+        #[arg(long)]
+        recommender: bool,
         /// Environments per actor in the MuJoCo actor measurement.
         #[arg(long, default_value_t = 16)]
         envs: usize,
@@ -67,6 +71,24 @@ enum Command {
     Learner(jsae_learner::service::LearnerArgs),
     /// An actor (as `jsae-actor`).
     Actor(jsae_actor::service::ActorArgs),
+    /// Returns of reference recommenders (uniformly random, and the myopic most likely
+    /// next item read from the n-gram model) under a run's evaluation protocol.
+    RecommenderBaseline {
+        /// Settings file (`[environment.recommender]` picks the data).
+        #[arg(long, env = "JSAE_CONFIG")]
+        config: Option<PathBuf>,
+        /// Episodes per policy.
+        #[arg(long, default_value_t = 1000)]
+        episodes: usize,
+        /// Seed (the evaluation seed of a run with this seed is used).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
+    Health(jsae_actor::health::HealthArgs),
+    /// The Recommender gRPC service: recommendations from a live run's or a finished run's
+    /// policy, and session submission into the session store.
+    Recommender(jsae_actor::recsys::service::RecommenderArgs),
 }
 
 #[derive(Args, Debug)]
@@ -141,6 +163,8 @@ fn main() -> ExitCode {
         Command::Embedder(args) => return jsae_embedder::service::main(args),
         Command::Learner(args) => return jsae_learner::service::main(args),
         Command::Actor(args) => return jsae_actor::service::main(args),
+        Command::Recommender(args) => return jsae_actor::recsys::service::main(args),
+        Command::Health(args) => return jsae_actor::health::main(args),
         _ => {}
     }
     jsae_proto::net::init_logging();
@@ -180,8 +204,13 @@ fn main() -> ExitCode {
             quick,
             transport,
             mujoco,
+            recommender,
             envs,
         } => {
+            if recommender {
+                print!("{}", jsae_actor::bench_recommender::run(quick));
+                return ExitCode::SUCCESS;
+            }
             if mujoco {
                 print!("{}", jsae_actor::bench_mujoco::run(envs.max(1), quick));
                 return ExitCode::SUCCESS;
@@ -191,6 +220,49 @@ fn main() -> ExitCode {
             }
             print!("{}", jsae_actor::bench_transport::run(quick));
             ExitCode::SUCCESS
+        }
+        Command::RecommenderBaseline {
+            config,
+            episodes,
+            seed,
+        } => {
+            let config =
+                TrainConfig::from_layers(Some(EnvName::Recommender), None, config.as_deref())
+                    .map_err(|e| e.to_string())
+                    .and_then(|mut c| {
+                        c.seed = seed;
+                        c.validate().map(|()| c).map_err(|e| e.to_string())
+                    });
+            let config = match config {
+                Ok(c) if c.env == EnvName::Recommender => c,
+                Ok(c) => {
+                    eprintln!(
+                        "jsae recommender-baseline: the settings are for --env {}",
+                        c.env.as_str()
+                    );
+                    return ExitCode::from(2);
+                }
+                Err(e) => {
+                    eprintln!("jsae recommender-baseline: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            match jsae_actor::recsys::baseline::baselines(
+                &config,
+                episodes.max(1),
+                config.eval_seed(),
+            ) {
+                Ok(all) => {
+                    for b in all {
+                        println!("{}", serde_json::to_string(&b).unwrap_or_default());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae recommender-baseline: {e}");
+                    ExitCode::FAILURE
+                }
+            }
         }
         Command::Plot { out } => {
             let config = match TrainConfig::from_layers(None, None, Some(&out.join("config.toml")))
@@ -232,6 +304,10 @@ fn main() -> ExitCode {
                 }
             }
         }
-        Command::Embedder(_) | Command::Learner(_) | Command::Actor(_) => ExitCode::SUCCESS,
+        Command::Embedder(_)
+        | Command::Learner(_)
+        | Command::Actor(_)
+        | Command::Recommender(_)
+        | Command::Health(_) => ExitCode::SUCCESS,
     }
 }

@@ -10,6 +10,7 @@ pub mod slotmachine;
 use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
+pub use crate::recsys::{RecommenderEnv, RecsysError};
 pub use gridworld::Gridworld;
 pub use jsae_proto::settings::{
     EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
@@ -102,15 +103,16 @@ pub fn step_threads(configured: usize) -> usize {
     }
 }
 
-/// Builds the named environment.
-pub fn make_env(name: EnvName, config: &EnvConfig) -> Box<dyn Env> {
-    match name {
+/// Builds the named environment (only the recommender can fail: it reads its data).
+pub fn make_env(name: EnvName, config: &EnvConfig) -> Result<Box<dyn Env>, RecsysError> {
+    Ok(match name {
         EnvName::Gridworld => Box::new(Gridworld::new(config.gridworld.clone(), false)),
         EnvName::GridworldDiscrete => Box::new(Gridworld::new(config.gridworld.clone(), true)),
         EnvName::Slotmachine => Box::new(Slotmachine::new(config.slotmachine.clone())),
         EnvName::HalfCheetah => Box::new(MujocoEnv::new(Robot::HalfCheetah, &config.mujoco)),
         EnvName::Ant => Box::new(MujocoEnv::new(Robot::Ant, &config.mujoco)),
-    }
+        EnvName::Recommender => Box::new(RecommenderEnv::new(config)?),
+    })
 }
 
 #[cfg(test)]
@@ -123,6 +125,9 @@ mod tests {
         config.gridworld.actuators = 5;
         config.gridworld.bins = 7;
         config.slotmachine.bins = 3;
+        config.recommender.source = jsae_proto::settings::SessionSource::Synthetic;
+        config.recommender.top_n = 50;
+        config.recommender.history = 3;
         for factored in [false, true] {
             config.slotmachine.factored = factored;
             for name in [
@@ -131,8 +136,9 @@ mod tests {
                 EnvName::Slotmachine,
                 EnvName::HalfCheetah,
                 EnvName::Ant,
+                EnvName::Recommender,
             ] {
-                let env = make_env(name, &config);
+                let env = make_env(name, &config).expect("builds");
                 let (states, actions) = name.spaces(&config);
                 assert_eq!(
                     (&states, &actions),

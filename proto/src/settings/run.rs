@@ -260,6 +260,14 @@ impl TrainConfig {
             ppo.ent_coef = 0.0;
         }
         let mut env_steps = 500_000;
+        if env == EnvName::Recommender {
+            // 835 items: a random policy recommends each one about 120 times in the
+            // pre-training set. Dimensions from the paper's grid ({8,16,32} x {4,8,12}).
+            env_steps = 300_000;
+            embedding.state_dim = 16;
+            embedding.action_dim = 8;
+            embedding.pretrain_transitions = 100_000;
+        }
         if env.is_mujoco() {
             // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
             // 16 envs x 128; 32 minibatches of 64; clipped value loss), with observation
@@ -297,7 +305,8 @@ impl TrainConfig {
             rollouts_per_policy: 1,
             policy_wait_ms: 3000,
             device: DeviceKind::Flex,
-            eval_episodes: 20,
+            // recommender returns are sums of a few Bernoulli draws: 20 episodes are too noisy
+            eval_episodes: if env == EnvName::Recommender { 200 } else { 20 },
             out: PathBuf::new(),
             one_process: false,
             environment: EnvConfig::default(),

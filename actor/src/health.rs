@@ -1,0 +1,77 @@
+//! `jsae health`: a gRPC health check (grpc.health.v1) for container healthchecks, where no
+//! grpcurl is installed. Exit 0 when the service answers SERVING, 1 otherwise.
+
+use std::time::Duration;
+
+use tonic_health::pb::health_check_response::ServingStatus;
+use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
+
+/// The health check's command line.
+#[derive(Debug, Clone, clap::Args)]
+pub struct HealthArgs {
+    /// The service's address (`http://host:port`, or `host:port`).
+    #[arg(
+        long,
+        env = "JSAE_HEALTH_ADDR",
+        default_value = "http://127.0.0.1:50051"
+    )]
+    pub addr: String,
+    /// The service name to ask about ("" = the server as a whole).
+    #[arg(long, default_value = "")]
+    pub service: String,
+    /// Give up after this many milliseconds.
+    #[arg(long, default_value_t = 3000)]
+    pub timeout_ms: u64,
+}
+
+/// Asks once; `Ok(())` when the answer is SERVING.
+pub async fn check(args: &HealthArgs) -> Result<(), String> {
+    let url = if args.addr.contains("://") {
+        args.addr.clone()
+    } else {
+        format!("http://{}", args.addr)
+    };
+    let endpoint = tonic::transport::Endpoint::from_shared(url.clone())
+        .map_err(|e| format!("{url}: {e}"))?
+        .connect_timeout(Duration::from_millis(args.timeout_ms))
+        .timeout(Duration::from_millis(args.timeout_ms));
+    let channel = endpoint
+        .connect()
+        .await
+        .map_err(|e| format!("{url}: {e}"))?;
+    let answer = HealthClient::new(channel)
+        .check(HealthCheckRequest {
+            service: args.service.clone(),
+        })
+        .await
+        .map_err(|s| format!("{url}: {} ({:?})", s.message(), s.code()))?
+        .into_inner();
+    match answer.status() {
+        ServingStatus::Serving => Ok(()),
+        other => Err(format!("{url}: {other:?}")),
+    }
+}
+
+/// Runs the check: exit 0 when SERVING, 1 otherwise (the reason on stderr).
+pub fn main(args: HealthArgs) -> std::process::ExitCode {
+    let runtime = match tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+    {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("jsae health: {e}");
+            return std::process::ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(check(&args)) {
+        Ok(()) => {
+            println!("SERVING");
+            std::process::ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("jsae health: {e}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

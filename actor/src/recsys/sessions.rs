@@ -1,0 +1,102 @@
+//! Purchase sessions, the unit every source produces and the service accepts, and the
+//! contract's rules for a well-formed one.
+
+use serde::{Deserialize, Serialize};
+
+/// Most purchases one submitted session may hold.
+pub const MAX_PURCHASES_PER_SESSION: usize = 10_000;
+/// Longest `session_id` or `item_id`, in bytes.
+pub const MAX_ID_BYTES: usize = 256;
+
+/// One purchase.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Purchase {
+    /// The shop's item id.
+    pub item_id: String,
+    /// The price paid (0 where the source has no prices).
+    pub price: f64,
+    /// When, in milliseconds since the Unix epoch (or a relative time where the source has
+    /// no dates); purchases of a session are in this order.
+    pub time_unix_ms: i64,
+}
+
+/// The purchases of one session (or one user), oldest first.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Session {
+    /// The session's id.
+    pub session_id: String,
+    /// Its purchases, oldest first.
+    pub purchases: Vec<Purchase>,
+}
+
+/// Why a session is malformed (CONTRACT.md: empty id, no purchases, an empty item id, a
+/// negative, NaN or infinite price), or over the documented limits.
+pub fn check_session(session: &Session) -> Result<(), String> {
+    if session.session_id.is_empty() {
+        return Err("session_id is empty".into());
+    }
+    if session.session_id.len() > MAX_ID_BYTES {
+        return Err(format!("session_id is longer than {MAX_ID_BYTES} bytes"));
+    }
+    if session.purchases.is_empty() {
+        return Err("no purchases".into());
+    }
+    if session.purchases.len() > MAX_PURCHASES_PER_SESSION {
+        return Err(format!(
+            "{} purchases, more than {MAX_PURCHASES_PER_SESSION}",
+            session.purchases.len()
+        ));
+    }
+    for (i, p) in session.purchases.iter().enumerate() {
+        if p.item_id.is_empty() {
+            return Err(format!("purchase {i}: item_id is empty"));
+        }
+        if p.item_id.len() > MAX_ID_BYTES {
+            return Err(format!(
+                "purchase {i}: item_id is longer than {MAX_ID_BYTES} bytes"
+            ));
+        }
+        if !(p.price.is_finite() && p.price >= 0.0) {
+            return Err(format!(
+                "purchase {i}: price {} is not a finite number >= 0",
+                p.price
+            ));
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn session(id: &str, items: &[(&str, f64)]) -> Session {
+        Session {
+            session_id: id.into(),
+            purchases: items
+                .iter()
+                .map(|&(item, price)| Purchase {
+                    item_id: item.into(),
+                    price,
+                    time_unix_ms: 0,
+                })
+                .collect(),
+        }
+    }
+
+    #[test]
+    fn the_contracts_malformed_sessions_are_refused_with_a_reason() {
+        assert!(check_session(&session("s", &[("a", 1.0), ("b", 0.0)])).is_ok());
+        for (bad, reason) in [
+            (session("", &[("a", 1.0)]), "session_id"),
+            (session("s", &[]), "no purchases"),
+            (session("s", &[("", 1.0)]), "item_id"),
+            (session("s", &[("a", -1.0)]), "price"),
+            (session("s", &[("a", f64::NAN)]), "price"),
+            (session("s", &[("a", f64::INFINITY)]), "price"),
+        ] {
+            let err = check_session(&bad).expect_err("malformed");
+            assert!(err.contains(reason), "{err}");
+        }
+    }
+}

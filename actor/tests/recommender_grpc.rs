@@ -1,0 +1,241 @@
+//! The Recommender service from another language: a short JSAE run on synthetic sessions,
+//! then `jsae recommender --run DIR` serves its policy and a Python grpcio client (stubs
+//! generated from proto/ at test time, scripts/python/recommender_client.py) submits good
+//! and malformed sessions and asks for recommendations, good and bad. Then the session
+//! store holds exactly the good sessions, and once the model is refreshed from it a
+//! submitted new item is known to `Recommend`.
+
+mod common;
+
+use std::io::{BufRead, BufReader};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::{repo_root, venv_python};
+use jsae_proto::wire::pb;
+
+const SETTINGS: &str = r#"
+env = "recommender"
+algo = "jsae"
+env_steps = 8192
+envs_per_actor = 8
+rollout_len = 64
+eval_episodes = 2
+[environment.recommender]
+source = "synthetic"
+top_n = 50
+refresh_seconds = 1
+[environment.recommender.synthetic]
+items = 40
+sessions = 2000
+[embedding]
+pretrain_transitions = 2048
+pretrain_epochs = 2
+[ppo]
+epochs = 2
+"#;
+
+struct Server(Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn recommend(url: &str, history: &[&str], k: u32) -> Result<pb::RecommendResponse, tonic::Status> {
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .expect("runtime");
+    runtime.block_on(async {
+        let mut client = pb::recommender_client::RecommenderClient::connect(url.to_owned())
+            .await
+            .map_err(|e| tonic::Status::unavailable(e.to_string()))?;
+        client
+            .recommend(pb::RecommendRequest {
+                history: history.iter().map(|h| (*h).to_owned()).collect(),
+                k,
+            })
+            .await
+            .map(tonic::Response::into_inner)
+    })
+}
+
+#[test]
+fn a_python_client_submits_sessions_and_gets_recommendations() {
+    let python = venv_python();
+    let dir = std::env::temp_dir().join(format!("jsae-recommender-grpc-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let settings = dir.join("settings.toml");
+    std::fs::write(&settings, SETTINGS).expect("settings");
+    let run = dir.join("run");
+    let store = dir.join("store");
+
+    let trained = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["train", "--one-process", "--quiet", "--config"])
+        .arg(&settings)
+        .arg("--out")
+        .arg(&run)
+        .output()
+        .expect("jsae train runs");
+    assert!(
+        trained.status.success(),
+        "{}",
+        String::from_utf8_lossy(&trained.stderr)
+    );
+
+    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["recommender", "--listen", "127.0.0.1:0", "--run"])
+        .arg(&run)
+        .arg("--store-dir")
+        .arg(&store)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("jsae recommender starts");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut first)
+        .expect("the address line");
+    let server = Server(child);
+    let addr = first
+        .trim()
+        .rsplit(' ')
+        .next()
+        .expect("an address")
+        .to_owned();
+    assert!(first.contains("listening on"), "{first}");
+
+    // the container healthcheck's command
+    let health = |service: &str| {
+        Command::new(env!("CARGO_BIN_EXE_jsae"))
+            .args(["health", "--addr", &addr, "--service", service])
+            .output()
+            .expect("jsae health runs")
+    };
+    assert!(health("jsae.v1.Recommender").status.success());
+    assert!(health("").status.success());
+    assert_eq!(health("jsae.v1.Nothing").status.code(), Some(1));
+
+    let client = Command::new(&python)
+        .arg(repo_root().join("scripts/python/recommender_client.py"))
+        .arg(&addr)
+        .args(["item-0", "item-1", "item-2"])
+        .output()
+        .expect("python runs");
+    assert!(
+        client.status.success(),
+        "the Python client failed: {}{}",
+        String::from_utf8_lossy(&client.stdout),
+        String::from_utf8_lossy(&client.stderr)
+    );
+    let seen: serde_json::Value =
+        serde_json::from_slice(&client.stdout).expect("the client prints JSON");
+    assert!(seen["recommend"]["policy_version"].as_u64() > Some(0));
+    assert!(seen["recommend"]["embedding_version"].as_u64() > Some(0));
+    let errors: Vec<String> = seen["submit"]["errors"]
+        .as_array()
+        .expect("errors")
+        .iter()
+        .filter_map(|e| e.as_str().map(str::to_owned))
+        .collect();
+    for reason in [
+        "session_id is empty",
+        "no purchases",
+        "item_id is empty",
+        "price",
+    ] {
+        assert!(
+            errors.iter().any(|e| e.contains(reason)),
+            "no error says {reason:?}: {errors:?}"
+        );
+    }
+    assert!(
+        seen["invalid"]["k_above_catalogue"]
+            .as_str()
+            .is_some_and(|m| m.contains("catalogue")),
+        "{seen}"
+    );
+
+    // exactly the two good sessions were stored, synced before the answer
+    let stored = std::fs::read_to_string(store.join("sessions.jsonl")).expect("the store");
+    let ids: Vec<String> = stored
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).expect("JSON line")["session_id"]
+                .as_str()
+                .unwrap_or_default()
+                .to_owned()
+        })
+        .collect();
+    assert_eq!(ids, ["good-1", "good-2"]);
+
+    // the refresh (every second here) puts the new item into a free catalogue slot
+    let url = format!("http://{addr}");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let r = recommend(&url, &["brand-new-item"], 3).expect("Recommend answers");
+        if r.unknown_items == 0 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the submitted item never joined the model"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+
+    // SIGTERM: exit 0
+    let pid = server.0.id().to_string();
+    let killed = Command::new("kill")
+        .args(["-TERM", &pid])
+        .status()
+        .expect("kill");
+    assert!(killed.success());
+    let mut server = server;
+    let deadline = Instant::now() + Duration::from_secs(10);
+    let status = loop {
+        if let Some(s) = server.0.try_wait().expect("wait") {
+            break s;
+        }
+        assert!(Instant::now() < deadline, "no exit after SIGTERM");
+        std::thread::sleep(Duration::from_millis(50));
+    };
+    assert!(status.success(), "{status:?}");
+    assert_eq!(
+        health("").status.code(),
+        Some(1),
+        "nothing answers any more"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn the_recommender_command_line_refuses_incomplete_input() {
+    let out = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["recommender", "--listen", "127.0.0.1:0"])
+        .output()
+        .expect("jsae runs");
+    assert_eq!(out.status.code(), Some(2));
+    let reason = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        reason.contains("--learner") && reason.contains("--run"),
+        "{reason}"
+    );
+
+    let out = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "recommender",
+            "--learner",
+            "http://127.0.0.1:1",
+            "--algo",
+            "jsae",
+        ])
+        .output()
+        .expect("jsae runs");
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--embedder"));
+}

@@ -1,0 +1,126 @@
+"""A Recommender client in Python (grpcio), built from proto/jsae.proto at run time.
+
+Usage: recommender_client.py ADDR KNOWN_ITEM [KNOWN_ITEM ...]
+
+Checks the contract from another language: health, good and malformed sessions, good and
+bad Recommend requests. Prints one JSON object with what it saw (the Rust test reads it) and
+exits non-zero on the first check that fails.
+"""
+
+import json
+import math
+import os
+import sys
+import tempfile
+
+import grpc
+from grpc_tools import protoc
+from grpc_health.v1 import health_pb2, health_pb2_grpc
+
+
+def build_stubs(out_dir):
+    proto_dir = os.path.join(os.path.dirname(__file__), "..", "..", "proto", "proto")
+    proto_dir = os.path.abspath(proto_dir)
+    include = os.path.join(os.path.dirname(protoc.__file__), "_proto")
+    rc = protoc.main([
+        "protoc", f"-I{proto_dir}", f"-I{include}", f"--python_out={out_dir}",
+        f"--grpc_python_out={out_dir}", os.path.join(proto_dir, "jsae.proto"),
+    ])
+    if rc != 0:
+        sys.exit(f"protoc failed ({rc})")
+    sys.path.insert(0, out_dir)
+    import jsae_pb2
+    import jsae_pb2_grpc
+    return jsae_pb2, jsae_pb2_grpc
+
+
+def expect_code(call, code, what):
+    try:
+        call()
+    except grpc.RpcError as e:
+        if e.code() != code:
+            sys.exit(f"{what}: got {e.code()} ({e.details()}), expected {code}")
+        return e.details()
+    sys.exit(f"{what}: succeeded, expected {code}")
+
+
+def main():
+    addr, known = sys.argv[1], sys.argv[2:]
+    pb, rpc = build_stubs(tempfile.mkdtemp(prefix="jsae-stubs-"))
+    limit = 64 * 1024 * 1024
+    channel = grpc.insecure_channel(addr, options=[
+        ("grpc.max_send_message_length", limit), ("grpc.max_receive_message_length", limit)])
+    seen = {}
+
+    health = health_pb2_grpc.HealthStub(channel)
+    for service in ("", "jsae.v1.Recommender"):
+        status = health.Check(health_pb2.HealthCheckRequest(service=service), timeout=10).status
+        if status != health_pb2.HealthCheckResponse.SERVING:
+            sys.exit(f"health of {service!r}: {status}")
+    seen["health"] = "SERVING"
+
+    stub = rpc.RecommenderStub(channel)
+
+    # good recommendations
+    r = stub.Recommend(pb.RecommendRequest(history=known, k=5), timeout=10)
+    if len(r.items) != 5 or r.policy_version == 0:
+        sys.exit(f"Recommend: {r}")
+    scores = [i.score for i in r.items]
+    if scores != sorted(scores, reverse=True) or len({i.item_id for i in r.items}) != 5:
+        sys.exit(f"Recommend: items not best first or repeated: {r}")
+    seen["recommend"] = {"items": [i.item_id for i in r.items], "scores": scores,
+                         "policy_version": r.policy_version,
+                         "embedding_version": r.embedding_version,
+                         "unknown_items": r.unknown_items}
+    r = stub.Recommend(pb.RecommendRequest(history=["no-such-item", known[0], "nor-this"], k=3),
+                       timeout=10)
+    if r.unknown_items != 2 or len(r.items) != 3:
+        sys.exit(f"Recommend with unknown items: {r}")
+    seen["unknown_items"] = r.unknown_items
+
+    # bad requests
+    bad = {
+        "k0": pb.RecommendRequest(history=known, k=0),
+        "k_above_catalogue": pb.RecommendRequest(history=known, k=10_000_000),
+        "empty": pb.RecommendRequest(),
+        "empty_history": pb.RecommendRequest(k=3),
+        "long_history": pb.RecommendRequest(history=[known[0]] * 1001, k=3),
+    }
+    seen["invalid"] = {}
+    for name, req in bad.items():
+        seen["invalid"][name] = expect_code(lambda: stub.Recommend(req, timeout=10),
+                                            grpc.StatusCode.INVALID_ARGUMENT, f"Recommend {name}")
+
+    def session(sid, purchases):
+        return pb.Session(session_id=sid, purchases=[
+            pb.Purchase(item_id=i, price=p, time_unix_ms=1_700_000_000_000 + n)
+            for n, (i, p) in enumerate(purchases)])
+
+    sessions = [
+        session("good-1", [(known[0], 2.5), (known[1], 4.0), ("brand-new-item", 9.99)]),
+        session("", [(known[0], 1.0)]),
+        session("no-purchases", []),
+        session("empty-item", [(known[0], 1.0), ("", 1.0)]),
+        session("negative", [(known[0], -0.01)]),
+        session("nan", [(known[0], math.nan)]),
+        session("inf", [(known[0], math.inf)]),
+        session("good-2", [(known[1], 0.0)]),
+    ]
+    s = stub.SubmitSessions(iter(sessions), timeout=30)
+    if (s.sessions_accepted, s.sessions_rejected, s.purchases_accepted) != (2, 6, 4):
+        sys.exit(f"SubmitSessions: {s}")
+    if len(s.errors) != 6 or not all("INVALID_ARGUMENT" in e for e in s.errors):
+        sys.exit(f"SubmitSessions errors: {list(s.errors)}")
+    seen["submit"] = {"accepted": s.sessions_accepted, "rejected": s.sessions_rejected,
+                      "purchases": s.purchases_accepted, "errors": list(s.errors)}
+
+    seen["submit_empty"] = expect_code(lambda: stub.SubmitSessions(iter([]), timeout=10),
+                                       grpc.StatusCode.INVALID_ARGUMENT, "SubmitSessions empty")
+    huge = session("huge", [("x" * 200, 1.0)] * 100_000)  # about 21 MB: over the 16 MiB limit
+    seen["submit_huge"] = expect_code(lambda: stub.SubmitSessions(iter([huge]), timeout=30),
+                                      grpc.StatusCode.RESOURCE_EXHAUSTED, "SubmitSessions huge")
+    print(json.dumps(seen))
+
+
+if __name__ == "__main__":
+    main()
