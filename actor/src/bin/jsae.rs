@@ -86,6 +86,8 @@ enum Command {
     },
     /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
     Health(jsae_actor::health::HealthArgs),
+    /// Ask a Recommender for recommendations (prints the answer as JSON).
+    Recommend(jsae_actor::recsys::ask::AskArgs),
     /// The Recommender gRPC service: recommendations from a live run's or a finished run's
     /// policy, and session submission into the session store.
     Recommender(jsae_actor::recsys::service::RecommenderArgs),
@@ -165,6 +167,7 @@ fn main() -> ExitCode {
         Command::Actor(args) => return jsae_actor::service::main(args),
         Command::Recommender(args) => return jsae_actor::recsys::service::main(args),
         Command::Health(args) => return jsae_actor::health::main(args),
+        Command::Recommend(args) => return jsae_actor::recsys::ask::main(args),
         _ => {}
     }
     jsae_proto::net::init_logging();
@@ -308,6 +311,7 @@ fn main() -> ExitCode {
         | Command::Learner(_)
         | Command::Actor(_)
         | Command::Recommender(_)
-        | Command::Health(_) => ExitCode::SUCCESS,
+        | Command::Health(_)
+        | Command::Recommend(_) => ExitCode::SUCCESS,
     }
 }

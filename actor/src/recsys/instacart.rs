@@ -11,9 +11,15 @@ use std::path::{Path, PathBuf};
 use super::data::RecsysError;
 use super::sessions::{Purchase, Session};
 
-/// Where `scripts/setup-data.sh` puts the sample, in this checkout.
+/// Where `scripts/setup-data.sh` puts the sample, in this checkout (or `$JSAE_DATA_DIR/instacart/`
+/// where that is set, as in the container image).
 pub fn default_path() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("../third_party/instacart/df_sample.csv")
+    match std::env::var_os("JSAE_DATA_DIR") {
+        Some(dir) => Path::new(&dir).join("instacart/df_sample.csv"),
+        None => {
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../third_party/instacart/df_sample.csv")
+        }
+    }
 }
 
 /// One product of one order: (order_number, cart position, product, days since the prior

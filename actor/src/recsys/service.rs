@@ -40,6 +40,8 @@ pub const MAX_SESSIONS_PER_CALL: u64 = 100_000;
 pub const MAX_ERRORS_LISTED: usize = 100;
 /// Accepted sessions are written to the store in groups of this many (and at the end).
 const STORE_BATCH: usize = 1024;
+/// How often a followed run directory is checked for newer checkpoints.
+const RUN_POLL: Duration = Duration::from_secs(3);
 
 /// Why a request was refused; mapped to a gRPC status in one place.
 #[derive(Debug, thiserror::Error)]
@@ -488,7 +490,7 @@ pub struct WeightSources {
 }
 
 /// The newest `NAME-v{N}.bpk` (or `NAME-latest.bpk` with its `.version` file) in `dir`.
-fn newest_checkpoint(dir: &Path, name: &str) -> Option<(u64, Vec<u8>)> {
+fn newest_checkpoint(dir: &Path, name: &str) -> Option<(u64, PathBuf)> {
     let mut best: Option<(u64, PathBuf)> =
         std::fs::read_to_string(dir.join(format!("{name}-latest.version")))
             .ok()
@@ -507,29 +509,65 @@ fn newest_checkpoint(dir: &Path, name: &str) -> Option<(u64, Vec<u8>)> {
             best = Some((v, entry.path()));
         }
     }
-    let (version, path) = best?;
-    Some((version, std::fs::read(path).ok()?))
+    best
 }
 
-/// Loads the newest checkpoints of a run directory (`DIR/checkpoints`) into `rec`.
-pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<()> {
+/// Loads the newest checkpoints of a run directory (`DIR/checkpoints`) into `rec` where
+/// they differ from the versions in use; returns whether anything changed.
+pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
     let ckpt = dir.join("checkpoints");
-    let (version, bytes) = newest_checkpoint(&ckpt, "policy")
-        .ok_or_else(|| anyhow::anyhow!("{}: no policy checkpoint", ckpt.display()))?;
-    rec.set_policy(&PolicySnapshot { version, bytes })
-        .map_err(anyhow::Error::msg)?;
+    let read =
+        |path: &Path| std::fs::read(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()));
+    let mut changed = false;
     if rec.config.algo.uses_embedding() {
-        let (version, bytes) = newest_checkpoint(&ckpt, "embedding")
-            .ok_or_else(|| anyhow::anyhow!("{}: no embedding checkpoint", ckpt.display()))?;
-        rec.set_embedding(&EmbeddingSnapshot {
+        let (version, path) = newest_checkpoint(&ckpt, "embedding")
+            .ok_or_else(|| anyhow::anyhow!("{}: no embedding checkpoint yet", ckpt.display()))?;
+        if version > rec.embedding_version() {
+            rec.set_embedding(&EmbeddingSnapshot {
+                version,
+                bytes: read(&path)?,
+                model_loss: 0.0,
+                decoder_loss: 0.0,
+            })
+            .map_err(anyhow::Error::msg)?;
+            changed = true;
+        }
+    }
+    let (version, path) = newest_checkpoint(&ckpt, "policy")
+        .ok_or_else(|| anyhow::anyhow!("{}: no policy checkpoint yet", ckpt.display()))?;
+    if rec.policy_version() != Some(version) {
+        rec.set_policy(&PolicySnapshot {
             version,
-            bytes,
-            model_loss: 0.0,
-            decoder_loss: 0.0,
+            bytes: read(&path)?,
         })
         .map_err(anyhow::Error::msg)?;
+        changed = true;
     }
-    Ok(())
+    Ok(changed)
+}
+
+/// Follows a run directory: loads its newest checkpoints now and whenever newer ones appear.
+async fn follow_run(rec: Arc<Recommender>, dir: PathBuf) {
+    let mut waiting_said = false;
+    loop {
+        let (r, d) = (rec.clone(), dir.clone());
+        match tokio::task::spawn_blocking(move || load_run(&r, &d)).await {
+            Ok(Ok(true)) => tracing::info!(
+                "recommender: weights of {} (policy v{:?}, embedding v{})",
+                dir.display(),
+                rec.policy_version(),
+                rec.embedding_version()
+            ),
+            Ok(Ok(false)) => {}
+            Ok(Err(e)) if !waiting_said => {
+                tracing::warn!("recommender: waiting for checkpoints: {e:#}");
+                waiting_said = true;
+            }
+            Ok(Err(e)) => tracing::debug!("recommender: {e:#}"),
+            Err(e) => tracing::warn!("recommender: {e}"),
+        }
+        tokio::time::sleep(RUN_POLL).await;
+    }
 }
 
 /// Serves `rec` on `listener` until `shutdown` resolves, following the weight sources.
@@ -539,16 +577,12 @@ pub async fn serve(
     sources: WeightSources,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    if let Some(dir) = &sources.run {
-        load_run(&rec, dir)?;
-        tracing::info!(
-            "recommender: weights of {} (policy v{:?}, embedding v{})",
-            dir.display(),
-            rec.policy_version(),
-            rec.embedding_version()
-        );
-    }
     let mut tasks = tokio::task::JoinSet::new();
+    if let Some(dir) = sources.run.clone() {
+        // the first load before serving, so a finished run answers from the first request
+        let _ = load_run(&rec, &dir);
+        tasks.spawn(follow_run(rec.clone(), dir));
+    }
     if let Some(url) = sources.learner.clone() {
         let rec = rec.clone();
         tasks.spawn(async move {
@@ -659,27 +693,10 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
 }
 
 /// Runs the recommender service: exit 0 on SIGINT/SIGTERM, 2 for a bad configuration, 1 when
-/// it fails.
+/// it fails. With `--run DIR` it waits for the run's config.toml (a run still starting).
 pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
     use std::process::ExitCode;
-    let config = match config_of(&args) {
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("jsae recommender: {e}");
-            return ExitCode::from(2);
-        }
-    };
     net::init_logging();
-    let rec = match Recommender::new(&config, config.device) {
-        Ok(r) => Arc::new(r),
-        Err(e) => {
-            eprintln!("jsae recommender: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    if !rec.has_store() {
-        tracing::warn!("recommender: no session store (--store-dir): sessions are not kept");
-    }
     let runtime = match net::runtime() {
         Ok(r) => r,
         Err(e) => {
@@ -687,23 +704,44 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
             return ExitCode::FAILURE;
         }
     };
-    let sources = WeightSources {
-        learner: args.learner,
-        embedder: args.embedder,
-        run: args.run,
-    };
-    let result = runtime.block_on(async {
-        let shutdown = net::shutdown_signal()?;
-        let listener = net::bind(&args.listen).await?;
-        println!("jsae recommender listening on {}", listener.local_addr()?);
-        serve(rec, listener, sources, shutdown).await
+    let result: Result<(), (u8, String)> = runtime.block_on(async {
+        let fail = |e: &dyn std::fmt::Display| (1, format!("{e:#}"));
+        let mut shutdown = Box::pin(net::shutdown_signal().map_err(|e| fail(&e))?);
+        if let (Some(run), None) = (&args.run, &args.config) {
+            let file = run.join("config.toml");
+            if !file.exists() {
+                tracing::info!("recommender: waiting for {}", file.display());
+            }
+            while !file.exists() {
+                tokio::select! {
+                    () = &mut shutdown => return Ok(()),
+                    () = tokio::time::sleep(RUN_POLL) => {}
+                }
+            }
+        }
+        let config = config_of(&args).map_err(|e| (2, e))?;
+        let rec = Recommender::new(&config, config.device).map_err(|e| (2, e.to_string()))?;
+        if !rec.has_store() {
+            tracing::warn!("recommender: no session store (--store-dir): sessions are not kept");
+        }
+        let sources = WeightSources {
+            learner: args.learner.clone(),
+            embedder: args.embedder.clone(),
+            run: args.run.clone(),
+        };
+        let listener = net::bind(&args.listen).await.map_err(|e| fail(&e))?;
+        let addr = listener.local_addr().map_err(|e| fail(&e))?;
+        println!("jsae recommender listening on {addr}");
+        serve(Arc::new(rec), listener, sources, shutdown)
+            .await
+            .map_err(|e| fail(&e))
     });
     runtime.shutdown_timeout(Duration::from_secs(2));
     match result {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("jsae recommender: {e:#}");
-            ExitCode::FAILURE
+        Err((code, e)) => {
+            eprintln!("jsae recommender: {e}");
+            ExitCode::from(code)
         }
     }
 }
