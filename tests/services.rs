@@ -289,6 +289,15 @@ async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
         report.policy_versions
     );
     assert!(summary.policy_version > saved);
+    assert!(summary.learner_updates > saved, "{summary:?}");
+    // metrics.csv goes on numbering the updates across the restart
+    let updates: Vec<u64> = std::fs::read_to_string(c.out.join("metrics.csv"))
+        .expect("metrics.csv")
+        .lines()
+        .skip(1)
+        .filter_map(|l| l.split(',').next()?.parse().ok())
+        .collect();
+    assert!(increasing(&updates), "{updates:?}");
 }
 
 fn fragment(x_dim: usize, n: usize) -> RolloutFragment {

@@ -287,10 +287,12 @@ impl Learner {
     }
 
     /// Continues from a saved policy (a restarted learner): loads the weights and takes its
-    /// version, so actors' versions stay meaningful. The optimiser state starts afresh.
+    /// version, so actors' versions stay meaningful, and its update count (one version per
+    /// update), so metrics.csv goes on numbering. The optimiser state starts afresh.
     pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
         self.policy.load_bytes(&snapshot.bytes)?;
         self.version = snapshot.version;
+        self.updates = self.updates.max(snapshot.version);
         Ok(())
     }
 
