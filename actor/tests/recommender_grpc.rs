@@ -3,7 +3,8 @@
 //! generated from proto/ at test time, scripts/python/recommender_client.py) submits good
 //! and malformed sessions and asks for recommendations, good and bad. Then the session
 //! store holds exactly the good sessions, and once the model is refreshed from it a
-//! submitted new item is known to `Recommend`.
+//! submitted new item is known to `Recommend`. The command-line clients (`jsae recommend`,
+//! `jsae submit-sessions`) are checked against the same service.
 
 mod common;
 
@@ -173,11 +174,80 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         .collect();
     assert_eq!(ids, ["good-1", "good-2"]);
 
-    // the refresh (every second here) puts the new item into a free catalogue slot
+    // the command-line clients: `jsae recommend`, and `jsae submit-sessions` with one good
+    // session holding a new item and one the service refuses
+    let asked = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["recommend", "--addr", &addr, "--k", "2", "item-0", "item-1"])
+        .output()
+        .expect("jsae recommend runs");
+    assert!(
+        asked.status.success(),
+        "{}",
+        String::from_utf8_lossy(&asked.stderr)
+    );
+    let answer: serde_json::Value = serde_json::from_slice(&asked.stdout).expect("JSON");
+    assert_eq!(
+        answer["items"].as_array().map(Vec::len),
+        Some(2),
+        "{answer}"
+    );
+    let lines = dir.join("more.jsonl");
+    std::fs::write(
+        &lines,
+        concat!(
+            r#"{"session_id": "cli-1", "purchases": [{"item_id": "item-3"}, {"item_id": "cli-new-item", "price": 2.5}]}"#,
+            "\n",
+            r#"{"session_id": "cli-bad", "purchases": []}"#,
+            "\n"
+        ),
+    )
+    .expect("session file");
+    let submitted = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["submit-sessions", "--addr", &addr])
+        .arg(&lines)
+        .output()
+        .expect("jsae submit-sessions runs");
+    assert_eq!(submitted.status.code(), Some(1), "one was rejected");
+    let summary: serde_json::Value =
+        serde_json::from_slice(&submitted.stdout).expect("the summary as JSON");
+    assert_eq!(summary["sessions_accepted"], 1, "{summary}");
+    assert_eq!(summary["sessions_rejected"], 1, "{summary}");
+    assert_eq!(summary["purchases_accepted"], 2, "{summary}");
+    assert!(
+        summary["errors"][0]
+            .as_str()
+            .is_some_and(|e| e.starts_with("session 1 (session_id \"cli-bad\")")
+                && e.contains("no purchases")),
+        "{summary}"
+    );
+    // a file that is not a session file: exit 2 naming the line, nothing sent
+    let broken = dir.join("broken.jsonl");
+    std::fs::write(
+        &broken,
+        "{\"session_id\": \"cli-2\", \"purchases\": [{\"item_id\": \"x\"}]}\n{oops\n",
+    )
+    .expect("broken file");
+    let refused = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["submit-sessions", "--addr", &addr])
+        .arg(&broken)
+        .output()
+        .expect("jsae submit-sessions runs");
+    assert_eq!(refused.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&refused.stderr).contains("broken.jsonl:2:"));
+    let stored = std::fs::read_to_string(store.join("sessions.jsonl")).expect("the store");
+    assert_eq!(stored.lines().count(), 3, "good-1, good-2, cli-1: {stored}");
+    assert!(
+        stored
+            .lines()
+            .last()
+            .is_some_and(|l| l.contains("cli-new-item"))
+    );
+
+    // the refresh (every second here) puts the new items into free catalogue slots
     let url = format!("http://{addr}");
     let deadline = Instant::now() + Duration::from_secs(20);
     loop {
-        let r = recommend(&url, &["brand-new-item"], 3).expect("Recommend answers");
+        let r = recommend(&url, &["brand-new-item", "cli-new-item"], 3).expect("Recommend answers");
         if r.unknown_items == 0 {
             break;
         }

@@ -87,7 +87,10 @@ enum Command {
     /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
     Health(jsae_actor::health::HealthArgs),
     /// Ask a Recommender for recommendations (prints the answer as JSON).
-    Recommend(jsae_actor::recsys::ask::AskArgs),
+    Recommend(jsae_actor::recsys::client::AskArgs),
+    /// Send sessions from a JSON-lines file to a Recommender's SubmitSessions (prints the
+    /// summary as JSON; exit 1 when some were rejected).
+    SubmitSessions(jsae_actor::recsys::client::SubmitArgs),
     /// The Recommender gRPC service: recommendations from a live run's or a finished run's
     /// policy, and session submission into the session store.
     Recommender(jsae_actor::recsys::service::RecommenderArgs),
@@ -167,7 +170,8 @@ fn main() -> ExitCode {
         Command::Actor(args) => return jsae_actor::service::main(args),
         Command::Recommender(args) => return jsae_actor::recsys::service::main(args),
         Command::Health(args) => return jsae_actor::health::main(args),
-        Command::Recommend(args) => return jsae_actor::recsys::ask::main(args),
+        Command::Recommend(args) => return jsae_actor::recsys::client::main(args),
+        Command::SubmitSessions(args) => return jsae_actor::recsys::client::submit_main(args),
         _ => {}
     }
     jsae_proto::net::init_logging();
@@ -312,6 +316,7 @@ fn main() -> ExitCode {
         | Command::Actor(_)
         | Command::Recommender(_)
         | Command::Health(_)
-        | Command::Recommend(_) => ExitCode::SUCCESS,
+        | Command::Recommend(_)
+        | Command::SubmitSessions(_) => ExitCode::SUCCESS,
     }
 }

@@ -2,8 +2,8 @@
 //! a seeded generator), the session store that `SubmitSessions` appends to, the n-gram MDP
 //! built from them (Shani et al.), the environment over it, and the gRPC Recommender service.
 
-pub mod ask;
 pub mod baseline;
+pub mod client;
 pub mod data;
 pub mod env;
 pub mod instacart;

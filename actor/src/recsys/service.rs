@@ -28,7 +28,7 @@ use tokio::net::TcpListener;
 use tonic::{Request, Response, Status, Streaming};
 
 use super::data::{ModelHandle, RecsysError, model_handle};
-use super::sessions::{MAX_ID_BYTES, Purchase, Session, check_session};
+use super::sessions::{MAX_ID_BYTES, Session, check_session};
 use super::store::SessionStore;
 
 /// Longest `history` a Recommend request may carry.
@@ -351,21 +351,6 @@ fn best_k(all: &mut Vec<(u32, f32)>, k: usize) {
     all.sort_by(order);
 }
 
-fn from_wire(s: pb::Session) -> Session {
-    Session {
-        session_id: s.session_id,
-        purchases: s
-            .purchases
-            .into_iter()
-            .map(|p| Purchase {
-                item_id: p.item_id,
-                price: p.price,
-                time_unix_ms: p.time_unix_ms,
-            })
-            .collect(),
-    }
-}
-
 /// The gRPC face of a [`Recommender`].
 #[derive(Debug, Clone)]
 pub struct RecommenderService {
@@ -440,7 +425,7 @@ impl pb::recommender_server::Recommender for RecommenderService {
                 ))
                 .into());
             }
-            let session = from_wire(message);
+            let session = Session::from(message);
             match check_session(&session) {
                 Ok(()) => {
                     summary.sessions_accepted += 1;

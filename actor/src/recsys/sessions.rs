@@ -1,6 +1,7 @@
 //! Purchase sessions, the unit every source produces and the service accepts, and the
 //! contract's rules for a well-formed one.
 
+use jsae_proto::wire::pb;
 use serde::{Deserialize, Serialize};
 
 /// Most purchases one submitted session may hold.
@@ -13,10 +14,12 @@ pub const MAX_ID_BYTES: usize = 256;
 pub struct Purchase {
     /// The shop's item id.
     pub item_id: String,
-    /// The price paid (0 where the source has no prices).
+    /// The price paid (0 where the source has no prices; 0 when a JSON line leaves it out).
+    #[serde(default)]
     pub price: f64,
     /// When, in milliseconds since the Unix epoch (or a relative time where the source has
-    /// no dates); purchases of a session are in this order.
+    /// no dates); purchases of a session are in this order. 0 when a JSON line leaves it out.
+    #[serde(default)]
     pub time_unix_ms: i64,
 }
 
@@ -64,6 +67,40 @@ pub fn check_session(session: &Session) -> Result<(), String> {
         }
     }
     Ok(())
+}
+
+impl From<pb::Session> for Session {
+    fn from(s: pb::Session) -> Self {
+        Session {
+            session_id: s.session_id,
+            purchases: s
+                .purchases
+                .into_iter()
+                .map(|p| Purchase {
+                    item_id: p.item_id,
+                    price: p.price,
+                    time_unix_ms: p.time_unix_ms,
+                })
+                .collect(),
+        }
+    }
+}
+
+impl From<Session> for pb::Session {
+    fn from(s: Session) -> Self {
+        pb::Session {
+            session_id: s.session_id,
+            purchases: s
+                .purchases
+                .into_iter()
+                .map(|p| pb::Purchase {
+                    item_id: p.item_id,
+                    price: p.price,
+                    time_unix_ms: p.time_unix_ms,
+                })
+                .collect(),
+        }
+    }
 }
 
 #[cfg(test)]
