@@ -57,8 +57,9 @@ pub trait Env: Send {
     fn push_state(&self, out: &mut StateBatch);
 }
 
-/// Steps `envs[i]` with row `i` of `actions` into `out[i]`, on up to `threads` scoped
-/// threads (contiguous chunks of environments; 1: on the calling thread). Environments own
+/// Steps `envs[i]` with row `i` of `actions` into `out[i]`, on up to `threads` threads
+/// (contiguous chunks of environments: the first on the calling thread, the others on
+/// scoped threads; 1: all on the calling thread). Environments own
 /// their state, so the result does not depend on `threads`.
 pub fn step_all(
     envs: &mut [Box<dyn Env>],
@@ -80,17 +81,23 @@ pub fn step_all(
         return;
     }
     let chunk = envs.len().div_ceil(threads);
+    let step_chunk = |c: usize, envs: &mut [Box<dyn Env>], out: &mut [Step]| {
+        for (j, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
+            *o = step_one(env, c * chunk + j);
+        }
+    };
     std::thread::scope(|scope| {
-        for (c, (envs, out)) in envs
+        let mut chunks = envs
             .chunks_mut(chunk)
             .zip(out.chunks_mut(chunk))
-            .enumerate()
-        {
-            scope.spawn(move || {
-                for (j, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
-                    *o = step_one(env, c * chunk + j);
-                }
-            });
+            .enumerate();
+        // the calling thread steps the first chunk itself: one spawn fewer per step
+        let first = chunks.next();
+        for (c, (envs, out)) in chunks {
+            scope.spawn(move || step_chunk(c, envs, out));
+        }
+        if let Some((c, (envs, out))) = first {
+            step_chunk(c, envs, out);
         }
     });
 }
@@ -147,6 +154,40 @@ mod tests {
                     name.as_str()
                 );
             }
+        }
+    }
+
+    #[test]
+    fn stepping_on_threads_gives_what_one_thread_gives() {
+        use rand::{Rng, SeedableRng};
+        let config = EnvConfig::default();
+        let run = |threads: usize| {
+            let mut rng = ChaCha8Rng::seed_from_u64(7);
+            let mut envs: Vec<Box<dyn Env>> = (0..5)
+                .map(|_| make_env(EnvName::HalfCheetah, &config).expect("builds"))
+                .collect();
+            for env in &mut envs {
+                env.reset(&mut rng);
+            }
+            let mut steps = vec![Step::default(); envs.len()];
+            let mut seen = Vec::new();
+            for _ in 0..20 {
+                let data = (0..envs.len() * 6)
+                    .map(|_| rng.random_range(-1.5f32..1.5))
+                    .collect();
+                let actions = ActionBatch::Continuous { dim: 6, data };
+                step_all(&mut envs, &actions, &mut steps, threads);
+                let mut states = StateBatch::empty(envs[0].state_space());
+                for env in &envs {
+                    env.push_state(&mut states);
+                }
+                seen.push((steps.clone(), states));
+            }
+            seen
+        };
+        let one = run(1);
+        for threads in [2, 3, 8] {
+            assert!(run(threads) == one, "{threads} threads differ from one");
         }
     }
 }
