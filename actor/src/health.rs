@@ -24,13 +24,9 @@ pub struct HealthArgs {
     pub timeout_ms: u64,
 }
 
-/// Asks once; `Ok(())` when the answer is SERVING.
-pub async fn check(args: &HealthArgs) -> Result<(), String> {
-    let url = if args.addr.contains("://") {
-        args.addr.clone()
-    } else {
-        format!("http://{}", args.addr)
-    };
+/// Asks once; `Ok("SERVING")` when the answer is SERVING.
+pub async fn check(args: &HealthArgs) -> Result<&'static str, String> {
+    let url = crate::oneshot::url(&args.addr);
     let endpoint = tonic::transport::Endpoint::from_shared(url.clone())
         .map_err(|e| format!("{url}: {e}"))?
         .connect_timeout(Duration::from_millis(args.timeout_ms))
@@ -47,31 +43,12 @@ pub async fn check(args: &HealthArgs) -> Result<(), String> {
         .map_err(|s| format!("{url}: {} ({:?})", s.message(), s.code()))?
         .into_inner();
     match answer.status() {
-        ServingStatus::Serving => Ok(()),
+        ServingStatus::Serving => Ok("SERVING"),
         other => Err(format!("{url}: {other:?}")),
     }
 }
 
 /// Runs the check: exit 0 when SERVING, 1 otherwise (the reason on stderr).
 pub fn main(args: HealthArgs) -> std::process::ExitCode {
-    let runtime = match tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-    {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("jsae health: {e}");
-            return std::process::ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(check(&args)) {
-        Ok(()) => {
-            println!("SERVING");
-            std::process::ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("jsae health: {e}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    crate::oneshot::run("jsae health", check(&args))
 }

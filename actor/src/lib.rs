@@ -19,6 +19,7 @@ pub mod bench_transport;
 pub mod envs;
 pub mod health;
 pub mod launch;
+pub mod oneshot;
 pub mod plot;
 pub mod progress;
 pub mod recsys;

@@ -9,14 +9,6 @@ use jsae_proto::wire::pb;
 use super::service::MAX_SESSIONS_PER_CALL;
 use super::sessions::Session;
 
-fn url_of(addr: &str) -> String {
-    if addr.contains("://") {
-        addr.to_owned()
-    } else {
-        format!("http://{addr}")
-    }
-}
-
 /// The client's command line.
 #[derive(Debug, Clone, clap::Args)]
 pub struct AskArgs {
@@ -37,7 +29,7 @@ pub struct AskArgs {
 
 /// Asks once; the answer as JSON, or the status as an error.
 pub async fn ask(args: &AskArgs) -> Result<serde_json::Value, String> {
-    let url = url_of(&args.addr);
+    let url = crate::oneshot::url(&args.addr);
     let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
         .await
         .map_err(|e| format!("{url}: {e}"))?;
@@ -59,33 +51,7 @@ pub async fn ask(args: &AskArgs) -> Result<serde_json::Value, String> {
 
 /// Runs the client: exit 0 with the answer on stdout, 1 with the reason on stderr.
 pub fn main(args: AskArgs) -> std::process::ExitCode {
-    run_client("jsae recommend", ask(&args))
-}
-
-fn run_client(
-    name: &str,
-    call: impl std::future::Future<Output = Result<serde_json::Value, String>>,
-) -> std::process::ExitCode {
-    let runtime = match tokio::runtime::Builder::new_current_thread()
-        .enable_all()
-        .build()
-    {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("{name}: {e}");
-            return std::process::ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(call) {
-        Ok(v) => {
-            println!("{v}");
-            std::process::ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("{name}: {e}");
-            std::process::ExitCode::FAILURE
-        }
-    }
+    crate::oneshot::run("jsae recommend", ask(&args))
 }
 
 /// `jsae submit-sessions`' command line.
@@ -123,7 +89,7 @@ pub fn read_sessions(reader: impl BufRead, name: &str) -> Result<Vec<Session>, S
 /// Streams the sessions in calls of at most [`MAX_SESSIONS_PER_CALL`] and adds up the
 /// service's summaries (the rejected ones, with the service's reasons, are in `errors`).
 pub async fn submit(addr: &str, sessions: Vec<Session>) -> Result<serde_json::Value, String> {
-    let url = url_of(addr);
+    let url = crate::oneshot::url(addr);
     let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
         .await
         .map_err(|e| format!("{url}: {e}"))?
@@ -208,20 +174,20 @@ pub fn submit_main(args: SubmitArgs) -> std::process::ExitCode {
         );
         return std::process::ExitCode::from(2);
     }
-    let rejected = std::sync::atomic::AtomicBool::new(false);
-    let code = run_client("jsae submit-sessions", async {
-        let v = submit(&args.addr, sessions).await?;
-        rejected.store(
-            v["sessions_rejected"].as_u64() != Some(0),
-            std::sync::atomic::Ordering::Relaxed,
-        );
-        Ok(v)
-    });
-    if code == std::process::ExitCode::SUCCESS && rejected.into_inner() {
-        std::process::ExitCode::FAILURE
-    } else {
-        code
-    }
+    crate::oneshot::run("jsae submit-sessions", async {
+        let summary = submit(&args.addr, sessions).await?;
+        match summary["sessions_rejected"].as_u64() {
+            Some(0) => Ok(summary),
+            rejected => {
+                // the summary still goes to stdout; the exit status says some were refused
+                println!("{summary}");
+                Err(format!(
+                    "{} sessions rejected (their reasons are in `errors`)",
+                    rejected.unwrap_or_default()
+                ))
+            }
+        }
+    })
 }
 
 #[cfg(test)]
