@@ -1,11 +1,12 @@
 //! The learned gridworld action embeddings reflect displacement: an action's nearest
 //! neighbours in E cause motions closer to its own than random actions do.
 
-use jsae_actor::envs::EnvName;
-use jsae_actor::envs::gridworld::action_motions;
-use jsae_actor::{ActorWorker, Algo, TrainConfig};
-use jsae_embedder::nn::{BurnDevice, DeviceKind};
+use jsae_actor::ActorWorker;
 use jsae_embedder::{EmbedderTrainer, Embedding};
+use jsae_envs::gridworld::action_motions;
+use jsae_nn::{BurnDevice, DeviceKind};
+use jsae_proto::settings::EnvName;
+use jsae_proto::settings::{Algo, TrainConfig};
 
 /// Mean motion distance from each action to its `k` nearest neighbours in E, and to all
 /// other actions.

@@ -1,10 +1,11 @@
 //! End-to-end runs of the one-process trainer: determinism, both devices, every
 //! environment with both algorithms, and the run directory's files.
 
-use jsae_actor::envs::EnvName;
-use jsae_actor::progress::Progress;
-use jsae_actor::{Algo, train_one_process};
-use jsae_embedder::nn::DeviceKind;
+use jsae_cli::progress::Progress;
+use jsae_cli::train_one_process;
+use jsae_nn::DeviceKind;
+use jsae_proto::settings::Algo;
+use jsae_proto::settings::EnvName;
 use jsae_tests::{metrics_without_timing, small_config, summary_without_timing, temp_dir};
 
 #[test]

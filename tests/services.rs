@@ -1,166 +1,18 @@
 //! The services over real gRPC on 127.0.0.1: actors, learner and embedder started from their
-//! libraries on free ports, talking exactly as the processes do.
+//! libraries on free ports, talking exactly as the processes do (the harness is
+//! `jsae_tests::services`).
 
-use std::path::Path;
 use std::time::Duration;
 
-use jsae_actor::envs::EnvName;
-use jsae_actor::service::{ActorExit, ActorOptions, ActorReport};
-use jsae_actor::{Algo, TrainConfig};
+use jsae_actor::service::ActorExit;
 use jsae_embedder::service::EmbedderOptions;
-use jsae_learner::Summary;
-use jsae_learner::service::LearnerOptions;
+use jsae_proto::ActionBatch;
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{Algo, EnvName};
 use jsae_proto::wire::pb;
-use jsae_proto::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
-use jsae_tests::{small_config, temp_dir};
+use jsae_tests::services::*;
 use tokio::net::TcpListener;
-use tokio::sync::oneshot;
-use tokio::task::JoinHandle;
 use tonic::Code;
-
-struct Service<T> {
-    url: String,
-    stop: Option<oneshot::Sender<()>>,
-    handle: JoinHandle<anyhow::Result<T>>,
-}
-
-impl<T> Service<T> {
-    async fn stop(mut self) -> anyhow::Result<T> {
-        if let Some(s) = self.stop.take() {
-            let _ = s.send(());
-        }
-        self.handle.await.expect("service task")
-    }
-
-    async fn join(self) -> anyhow::Result<T> {
-        tokio::time::timeout(Duration::from_secs(240), self.handle)
-            .await
-            .expect("finishes in time")
-            .expect("service task")
-    }
-}
-
-fn stop_signal() -> (
-    oneshot::Sender<()>,
-    impl Future<Output = ()> + Send + 'static,
-) {
-    let (tx, rx) = oneshot::channel::<()>();
-    (tx, async move {
-        let _ = rx.await;
-    })
-}
-
-async fn bind() -> (TcpListener, String) {
-    let l = TcpListener::bind("127.0.0.1:0").await.expect("bind");
-    let url = format!("http://{}", l.local_addr().expect("addr"));
-    (l, url)
-}
-
-async fn start_embedder(config: &TrainConfig) -> Service<()> {
-    start_embedder_with(config, EmbedderOptions::default()).await
-}
-
-async fn start_embedder_with(config: &TrainConfig, options: EmbedderOptions) -> Service<()> {
-    let (listener, url) = bind().await;
-    let (stop, signal) = stop_signal();
-    let config = config.clone();
-    let handle = tokio::spawn(jsae_embedder::service::serve(
-        config, listener, options, signal,
-    ));
-    Service {
-        url,
-        stop: Some(stop),
-        handle,
-    }
-}
-
-async fn start_learner_on(
-    config: &TrainConfig,
-    listener: TcpListener,
-    url: String,
-    embedder: Option<String>,
-) -> Service<Option<Summary>> {
-    let (stop, signal) = stop_signal();
-    let options = LearnerOptions {
-        out: config.out.clone(),
-        embedder,
-    };
-    let handle = tokio::spawn(jsae_learner::service::serve(
-        config.clone(),
-        listener,
-        options,
-        signal,
-    ));
-    Service {
-        url,
-        stop: Some(stop),
-        handle,
-    }
-}
-
-async fn start_learner(config: &TrainConfig, embedder: Option<String>) -> Service<Option<Summary>> {
-    let (listener, url) = bind().await;
-    start_learner_on(config, listener, url, embedder).await
-}
-
-fn start_actor(
-    config: &TrainConfig,
-    id: u64,
-    embedder: Option<&str>,
-    learner: &str,
-) -> Service<ActorReport> {
-    let (stop, signal) = stop_signal();
-    let options = ActorOptions {
-        id,
-        embedder: embedder.map(String::from),
-        learner: learner.to_string(),
-    };
-    let handle = tokio::spawn(jsae_actor::service::run(config.clone(), options, signal));
-    Service {
-        url: String::new(),
-        stop: Some(stop),
-        handle,
-    }
-}
-
-fn config(env: EnvName, algo: Algo, name: &str) -> TrainConfig {
-    let mut c = small_config(env, algo, 3, temp_dir(name));
-    c.envs_per_actor = 4;
-    c.rollout_len = 32;
-    c.embedding.pretrain_transitions = 1_024;
-    c.embedding.pretrain_epochs = 2;
-    c.embedding.update_every = 2_048;
-    c.embedding.update_steps = 5;
-    c.policy_wait_ms = 500;
-    c
-}
-
-fn metrics_rows(out: &Path) -> usize {
-    std::fs::read_to_string(out.join("metrics.csv"))
-        .map_or(0, |t| t.lines().count().saturating_sub(1))
-}
-
-async fn wait_for_rows(out: &Path, rows: usize) {
-    for _ in 0..2400 {
-        if metrics_rows(out) >= rows {
-            return;
-        }
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    panic!("the learner did not reach {rows} updates");
-}
-
-async fn channel(url: &str) -> tonic::transport::Channel {
-    tonic::transport::Channel::from_shared(url.to_string())
-        .expect("url")
-        .connect()
-        .await
-        .expect("connect")
-}
-
-fn increasing(v: &[u64]) -> bool {
-    v.windows(2).all(|w| w[0] < w[1])
-}
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_actors_feed_one_learner_and_policy_versions_reach_them() {
@@ -265,7 +117,7 @@ async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
         first.stop().await.expect("stops cleanly").is_none(),
         "interrupted, no summary"
     );
-    let saved = jsae_learner::service::latest_checkpoint(&c.out)
+    let saved = jsae_learner::service::latest_checkpoint(&RunDir::new(&c.out))
         .expect("a checkpoint")
         .version;
     tokio::time::sleep(Duration::from_millis(700)).await; // the actor is retrying meanwhile
@@ -298,68 +150,6 @@ async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
         .filter_map(|l| l.split(',').next()?.parse().ok())
         .collect();
     assert!(increasing(&updates), "{updates:?}");
-}
-
-fn fragment(x_dim: usize, n: usize) -> RolloutFragment {
-    RolloutFragment {
-        actor_id: 9,
-        env_index: 0,
-        policy_version: 0,
-        embedding_version: 0,
-        actor_env_steps: n as u64,
-        x_dim,
-        x: vec![0.5; n * x_dim],
-        actions: ActionBatch::Discrete(vec![1; n]),
-        logp: vec![-6.0; n],
-        rewards: vec![-0.01; n],
-        terminated: vec![false; n],
-        truncated: vec![false; n],
-        truncated_next_x: vec![],
-        last_next_x: vec![0.5; x_dim],
-        episodes: vec![],
-    }
-}
-
-async fn push_fragments(url: &str, msgs: Vec<pb::RolloutFragment>) -> Result<u64, tonic::Status> {
-    let mut client = pb::learner_client::LearnerClient::connect(url.to_string())
-        .await
-        .expect("connect")
-        .max_encoding_message_size(64 << 20);
-    client
-        .push_fragments(tokio_stream::iter(msgs))
-        .await
-        .map(|r| r.into_inner().accepted)
-}
-
-fn transitions(n: usize, reward: f32) -> TransitionBatch {
-    TransitionBatch {
-        actor_id: 9,
-        states: StateBatch::Real {
-            dim: 2,
-            data: vec![0.3; 2 * n],
-        },
-        actions: ActionBatch::Discrete((0..n as u32).map(|i| i % 512).collect()),
-        rewards: vec![reward; n],
-        next_states: StateBatch::Real {
-            dim: 2,
-            data: vec![0.31; 2 * n],
-        },
-        terminated: vec![false; n],
-    }
-}
-
-fn assert_refused(r: Result<u64, tonic::Status>, code: Code, words: &str) {
-    match r {
-        Ok(n) => panic!("accepted {n} messages, expected {code:?}"),
-        Err(s) => {
-            assert_eq!(s.code(), code, "{}", s.message());
-            assert!(
-                s.message().contains(words),
-                "{:?} lacks {words:?}",
-                s.message()
-            );
-        }
-    }
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -523,23 +313,6 @@ async fn health_answers_serving_and_reflection_lists_the_services() {
     embedder.stop().await.expect("embedder stops");
 }
 
-async fn first_embedding_version(url: &str) -> u64 {
-    let mut client = pb::embedder_client::EmbedderClient::connect(url.to_string())
-        .await
-        .expect("connect");
-    let mut watch = client
-        .watch_embedding(pb::WatchRequest { actor_id: 0 })
-        .await
-        .expect("watch")
-        .into_inner();
-    tokio::time::timeout(Duration::from_secs(60), watch.message())
-        .await
-        .expect("a snapshot in time")
-        .expect("stream")
-        .expect("a chunk")
-        .version
-}
-
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restarted_embedder_continues_its_version_line() {
     let mut c = config(EnvName::Gridworld, Algo::Jsae, "restart-embedder");
@@ -567,8 +340,8 @@ async fn a_restarted_embedder_continues_its_version_line() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
-    use jsae_actor::recsys::service::{Recommender, WeightSources};
     use jsae_proto::settings::SessionSource;
+    use jsae_recommender::{Recommender, WeightSources};
     let mut c = config(EnvName::Recommender, Algo::Jsae, "recommender-live");
     c.env_steps = 12_288;
     let r = &mut c.environment.recommender;
@@ -578,9 +351,8 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
     r.synthetic.sessions = 1_000;
     let embedder = start_embedder(&c).await;
     let learner = start_learner(&c, Some(embedder.url.clone())).await;
-    let rec = std::sync::Arc::new(
-        Recommender::new(&c, jsae_embedder::nn::DeviceKind::Flex).expect("recommender"),
-    );
+    let rec =
+        std::sync::Arc::new(Recommender::new(&c, jsae_nn::DeviceKind::Flex).expect("recommender"));
     let (listener, rec_url) = bind().await;
     let (stop_rec, signal) = stop_signal();
     let sources = WeightSources {
@@ -588,9 +360,7 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
         embedder: Some(embedder.url.clone()),
         run: None,
     };
-    let served = tokio::spawn(jsae_actor::recsys::service::serve(
-        rec, listener, sources, signal,
-    ));
+    let served = tokio::spawn(jsae_recommender::serve(rec, listener, sources, signal));
     let mut client = pb::recommender_client::RecommenderClient::new(channel(&rec_url).await);
     let ask = pb::RecommendRequest {
         history: vec!["item-0".into(), "item-1".into()],

@@ -12,14 +12,13 @@
 //!   event ends the process with exit 0, as SIGINT/SIGTERM do.
 
 use std::future::Future;
-use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
 use jsae_proto::client::{self, PolicyEvent};
 use jsae_proto::net::{self, Backoff};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_proto::settings::{EmbedderFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 use tokio::sync::{mpsc, watch};
@@ -147,7 +146,7 @@ fn stepping_loop(
         policy_versions: Vec::new(),
         embedding_versions: Vec::new(),
     };
-    let uses_embedding = config.algo.uses_embedding();
+    let needs_embedder = config.algo.representation().needs_embedder();
     // (policy version, rollouts sent under it, when that version arrived)
     let mut pace: Option<(u64, usize, std::time::Instant)> = None;
     let wait = Duration::from_millis(config.policy_wait_ms);
@@ -215,7 +214,7 @@ fn stepping_loop(
         // Random play only until this actor's share of the pre-training transitions is in;
         // then wait for the first embedding rather than spend the budget on more.
         let waiting_for_embedding =
-            uses_embedding && worker.embedding_version() == 0 && worker.env_steps() >= random_share;
+            needs_embedder && worker.embedding_version() == 0 && worker.env_steps() >= random_share;
         let Some(version) = worker.policy_version() else {
             std::thread::sleep(Duration::from_millis(5));
             continue;
@@ -226,7 +225,7 @@ fn stepping_loop(
         }
         // On-policy pacing: at most `rollouts_per_policy` rollouts per policy version,
         // unless the next version is overdue.
-        let acting = worker.embedding_version() > 0 || !uses_embedding;
+        let acting = worker.embedding_version() > 0 || !needs_embedder;
         match &mut pace {
             _ if !acting => pace = None,
             Some((v, sent, since)) if *v == version => {
@@ -243,7 +242,7 @@ fn stepping_loop(
             _ => pace = Some((version, 0, std::time::Instant::now())),
         }
         let rollout = worker.collect(config.rollout_len);
-        if uses_embedding && !rollout.transitions.is_empty() {
+        if needs_embedder && !rollout.transitions.is_empty() {
             links
                 .transitions
                 .blocking_send(rollout.transitions.into())
@@ -280,7 +279,7 @@ pub async fn run(
     let mut tasks = tokio::task::JoinSet::new();
     let learner_channel = net::channel(&options.learner)?;
 
-    if config.algo.uses_embedding() {
+    if config.algo.representation().needs_embedder() {
         let url = options
             .embedder
             .clone()
@@ -387,29 +386,25 @@ pub async fn run(
 }
 
 /// The actor's command line (CONTRACT.md).
-#[derive(Debug, Clone, clap::Args)]
+#[derive(Debug, Clone, clap::Parser)]
+#[command(
+    name = "jsae-actor",
+    version,
+    about = "JSAE-RL actor: steps environments, streams transitions and fragments"
+)]
 pub struct ActorArgs {
-    /// Embedder URL (`http://host:port`; needed by `--algo jsae`).
-    #[arg(long, env = "JSAE_EMBEDDER")]
-    pub embedder: Option<String>,
+    /// `--embedder`.
+    #[command(flatten)]
+    pub embedder: EmbedderFlag,
     /// Learner URL (`http://host:port`).
     #[arg(long, env = "JSAE_LEARNER")]
     pub learner: String,
-    /// Environment.
-    #[arg(long, value_enum, env = "JSAE_ENV")]
-    pub env: EnvName,
-    /// Algorithm [default: the settings file's, else jsae].
-    #[arg(long, value_enum, env = "JSAE_ALGO")]
-    pub algo: Option<Algo>,
-    /// Seed.
-    #[arg(long, env = "JSAE_SEED")]
-    pub seed: u64,
+    /// `--env/--algo/--seed/--config`.
+    #[command(flatten)]
+    pub run: RunFlags,
     /// Environments stepped together [default: the settings file's, else 16].
     #[arg(long, env = "JSAE_ENVS")]
     pub envs: Option<usize>,
-    /// Settings file (TOML, as a run's config.toml).
-    #[arg(long, env = "JSAE_CONFIG")]
-    pub config: Option<PathBuf>,
     /// This actor's id; give every actor of a run its own [default: from the process id and
     /// the clock].
     #[arg(long, env = "JSAE_ACTOR_ID")]
@@ -419,68 +414,39 @@ pub struct ActorArgs {
 /// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
 /// bad configuration, 1 when it fails.
 pub fn main(args: ActorArgs) -> std::process::ExitCode {
-    use std::process::ExitCode;
-    let algo = args.algo.unwrap_or_else(|| {
-        args.config
-            .as_deref()
-            .and_then(|f| TrainConfig::from_layers(Some(args.env), None, Some(f)).ok())
-            .map_or(Algo::Jsae, |c| c.algo)
-    });
-    let config = TrainConfig::for_service(args.env, algo, args.seed, args.config.as_deref())
+    let config = args
+        .run
+        .layered()
+        .map_err(|e| e.to_string())
         .and_then(|mut c| {
             c.envs_per_actor = args.envs.unwrap_or(c.envs_per_actor);
-            c.validate().map(|()| c)
+            c.validate().map_err(|e| e.to_string())?;
+            let embedder = args.embedder.for_run(&c)?;
+            Ok((c, embedder))
         });
-    let config = match config {
-        Ok(c) if c.algo.uses_embedding() && args.embedder.is_none() => {
-            eprintln!(
-                "jsae-actor: --embedder is required for --algo {}",
-                c.algo.as_str()
-            );
-            return ExitCode::from(2);
-        }
-        Ok(c) => c,
-        Err(e) => {
-            eprintln!("jsae-actor: {e}");
-            return ExitCode::from(2);
-        }
-    };
-    net::init_logging();
     let id = args.id.unwrap_or_else(|| {
         let nanos = std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_nanos() as u64);
         nanos ^ (u64::from(std::process::id()) << 32)
     });
-    let runtime = match net::runtime() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("jsae-actor: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    let options = ActorOptions {
-        id,
-        embedder: args.embedder,
-        learner: args.learner,
-    };
-    let result = runtime.block_on(async {
-        let shutdown = net::shutdown_signal()?;
-        run(config, options, shutdown).await
-    });
-    runtime.shutdown_timeout(Duration::from_secs(2));
-    match result {
-        Ok(report) => {
+    net::service_main(
+        "jsae-actor",
+        config,
+        |(config, embedder), shutdown| async move {
+            let options = ActorOptions {
+                id,
+                embedder,
+                learner: args.learner,
+            };
+            Ok(run(config, options, shutdown).await?)
+        },
+        |report| {
             tracing::info!(
                 "actor {id}: {:?} after {} env steps",
                 report.exit,
                 report.env_steps
             );
-            ExitCode::SUCCESS
-        }
-        Err(e) => {
-            eprintln!("jsae-actor: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+        },
+    )
 }

@@ -3,9 +3,10 @@
 //! embedder and embedded rollout fragments for the learner. Weights are swapped in whole
 //! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
 
+use jsae_agent::{SwapError, Weights};
 use jsae_embedder::Embedding;
-use jsae_embedder::nn::{BurnDevice, DeviceKind};
-use jsae_learner::{Policy, policy_shape};
+use jsae_learner::Policy;
+use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_proto::{
     ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
     RolloutFragment, StateBatch, StateSpace, TransitionBatch,
@@ -13,23 +14,18 @@ use jsae_proto::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use crate::envs::{ActionRef, Env, Step, make_env, step_all, step_threads};
+use jsae_envs::{ActionRef, Env, Step, make_env, step_all, step_threads};
 use jsae_proto::settings::TrainConfig;
 
 /// Why a snapshot could not be applied.
 #[derive(Debug, thiserror::Error)]
 pub enum WorkerError {
     /// The bytes do not fit the model.
-    #[error("snapshot version {version}: {source}")]
-    Snapshot {
-        /// The snapshot's version.
-        version: u64,
-        /// The cause.
-        source: jsae_embedder::nn::RecordError,
-    },
+    #[error(transparent)]
+    Snapshot(#[from] SwapError),
     /// The environment could not be made (the recommender's data).
     #[error("environment: {0}")]
-    Env(#[from] crate::envs::RecsysError),
+    Env(#[from] jsae_envs::RecsysError),
 }
 
 /// What one rollout produced.
@@ -57,15 +53,12 @@ pub struct ActorWorker {
     rng: ChaCha8Rng,
     states: StateSpace,
     actions: ActionSpace,
-    policy: Policy,
-    policy_version: Option<u64>,
-    embedding: Option<Embedding>,
+    weights: Weights,
     running: Vec<Running>,
     eval_env: Option<Box<dyn Env>>,
     visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
-    device: burn::tensor::Device,
 }
 
 impl std::fmt::Debug for ActorWorker {
@@ -73,7 +66,7 @@ impl std::fmt::Debug for ActorWorker {
         f.debug_struct("ActorWorker")
             .field("id", &self.id)
             .field("envs", &self.envs.len())
-            .field("policy_version", &self.policy_version)
+            .field("policy_version", &self.weights.policy_version())
             .field("embedding_version", &self.embedding_version())
             .field("env_steps", &self.env_steps)
             .finish()
@@ -101,10 +94,8 @@ impl ActorWorker {
             env.reset(rng);
             env.push_state(&mut current);
         }
-        let (input, head) = policy_shape(config, &states, &actions);
         let device = device.device();
-        let mut init_rng = ChaCha8Rng::seed_from_u64(0);
-        let policy = Policy::new(&config.ppo, input, head, &mut init_rng, &device);
+        let weights = Weights::new(config, &states, &actions, &device);
         Ok(Self {
             id,
             config: config.clone(),
@@ -116,12 +107,9 @@ impl ActorWorker {
             rng: ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1)),
             states,
             actions,
-            policy,
-            policy_version: None,
-            embedding: None,
+            weights,
             current,
             env_steps: 0,
-            device,
         })
     }
 
@@ -147,60 +135,33 @@ impl ActorWorker {
 
     /// Version of the embedding in use (0: none yet).
     pub fn embedding_version(&self) -> u64 {
-        self.embedding.as_ref().map_or(0, Embedding::version)
+        self.weights.embedding_version()
     }
 
     /// Version of the policy in use.
     pub fn policy_version(&self) -> Option<u64> {
-        self.policy_version
+        self.weights.policy_version()
     }
 
     /// The policy in use (None before the first policy snapshot).
     pub fn policy(&self) -> Option<&Policy> {
-        self.policy_version.map(|_| &self.policy)
+        self.weights.policy().map(|(_, p)| p)
     }
 
     /// The embedding in use.
     pub fn embedding(&self) -> Option<&Embedding> {
-        self.embedding.as_ref()
+        self.weights.embedding()
     }
 
     /// Swaps in a new embedding (ignored if not newer).
     pub fn set_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), WorkerError> {
-        if snapshot.version <= self.embedding_version() {
-            return Ok(());
-        }
-        let embedding = Embedding::from_snapshot(
-            &self.config.embedding,
-            &self.states,
-            &self.actions,
-            snapshot,
-            &self.device,
-        )
-        .map_err(|source| WorkerError::Snapshot {
-            version: snapshot.version,
-            source,
-        })?;
-        self.embedding = Some(embedding);
+        self.weights.set_embedding(snapshot)?;
         Ok(())
     }
 
     /// Swaps in another policy version (the current one is ignored).
     pub fn set_policy(&mut self, snapshot: &PolicySnapshot) -> Result<(), WorkerError> {
-        // Any other version replaces the weights, an older one too: that is a learner that
-        // restarted without a checkpoint, and its versions are the valid ones now.
-        if self.policy_version == Some(snapshot.version) {
-            return Ok(());
-        }
-        let mut policy = self.policy.clone();
-        policy
-            .load_bytes(&snapshot.bytes)
-            .map_err(|source| WorkerError::Snapshot {
-                version: snapshot.version,
-                source,
-            })?;
-        self.policy = policy;
-        self.policy_version = Some(snapshot.version);
+        self.weights.set_policy(snapshot)?;
         Ok(())
     }
 
@@ -227,14 +188,15 @@ impl ActorWorker {
 
     /// Whether actions come from the policy (else uniformly at random).
     fn acting(&self) -> bool {
-        self.policy_version.is_some()
-            && (!self.config.algo.uses_embedding() || self.embedding.is_some())
+        self.weights.ready()
     }
 
     /// Policy inputs of `states`, `[len, x_dim]`.
     fn policy_inputs(&self, states: &StateBatch, out: &mut Vec<f32>) {
-        match &self.embedding {
-            Some(e) if self.config.algo.uses_embedding() => e.embed_states(states, out),
+        match self.weights.embedding() {
+            Some(e) if self.config.algo.representation().embeds_states() => {
+                e.embed_states(states, out)
+            }
             _ => states.write_features(&self.states, out),
         }
     }
@@ -259,9 +221,9 @@ impl ActorWorker {
     /// actions clipped to the action box (the fragment keeps the unclipped sample, whose
     /// log-probability PPO scores; the embedder gets the action that was executed).
     fn env_actions(&mut self, policy_actions: &ActionBatch, out: &mut ActionBatch) {
-        match (&mut self.embedding, policy_actions) {
+        match (self.weights.embedding_mut(), policy_actions) {
             (Some(e), ActionBatch::Continuous { data, .. })
-                if self.config.algo.uses_embedding() =>
+                if self.config.algo.representation().decodes_actions() =>
             {
                 e.decode(data, out)
             }
@@ -283,8 +245,8 @@ impl ActorWorker {
     pub fn collect(&mut self, rollout_steps: usize) -> Rollout {
         let k = self.envs.len();
         let acting = self.acting();
-        let record_transitions = self.config.algo.uses_embedding();
-        let x_dim = self.policy.input_dim();
+        let record_transitions = self.config.algo.representation().needs_embedder();
+        let x_dim = self.weights.acting_policy().input_dim();
         let mut transitions = TransitionBatch {
             actor_id: self.id,
             states: StateBatch::empty(&self.states),
@@ -293,12 +255,12 @@ impl ActorWorker {
             next_states: StateBatch::empty(&self.states),
             terminated: Vec::new(),
         };
-        let head_space = self.policy.head().action_space();
+        let head_space = self.weights.acting_policy().head().action_space();
         let mut fragments: Vec<RolloutFragment> = (0..k)
             .map(|i| RolloutFragment {
                 actor_id: self.id,
                 env_index: i as u32,
-                policy_version: self.policy_version.unwrap_or(0),
+                policy_version: self.weights.policy_version().unwrap_or(0),
                 embedding_version: self.embedding_version(),
                 actor_env_steps: 0,
                 x_dim,
@@ -330,8 +292,13 @@ impl ActorWorker {
             logp.clear();
             if acting {
                 self.policy_inputs(&self.current, &mut x);
-                self.policy
-                    .act(&x, false, &mut self.rng, &mut policy_actions, &mut logp);
+                self.weights.acting_policy().act(
+                    &x,
+                    false,
+                    &mut self.rng,
+                    &mut policy_actions,
+                    &mut logp,
+                );
                 self.env_actions(&policy_actions, &mut env_actions);
             } else {
                 self.random_actions(k, &mut env_actions);
@@ -422,9 +389,9 @@ impl ActorWorker {
             None => unreachable!("evaluate puts the environment back"),
         };
         let mut env_rng = ChaCha8Rng::seed_from_u64(seed);
-        let head_space = self.policy.head().action_space();
+        let head_space = self.weights.acting_policy().head().action_space();
         let mut report = EvalReport {
-            policy_version: self.policy_version.unwrap_or(0),
+            policy_version: self.weights.policy_version().unwrap_or(0),
             embedding_version: self.embedding_version(),
             episodes: Vec::with_capacity(episodes),
         };
@@ -441,8 +408,13 @@ impl ActorWorker {
                 policy_action.clear();
                 env_action.clear();
                 self.policy_inputs(&state, &mut x);
-                self.policy
-                    .act(&x, true, &mut self.rng, &mut policy_action, &mut logp);
+                self.weights.acting_policy().act(
+                    &x,
+                    true,
+                    &mut self.rng,
+                    &mut policy_action,
+                    &mut logp,
+                );
                 self.env_actions(&policy_action, &mut env_action);
                 let step = match &env_action {
                     ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[0])),

@@ -6,8 +6,8 @@ use jsae_proto::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateS
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::{self, RecordError};
 use crate::{EmbeddingConfig, EmbeddingModel, NearestAction};
+use jsae_nn::{self as nn, RecordError};
 
 /// The inference side of the embedding model, swapped in whole when a snapshot arrives.
 #[derive(Debug, Clone)]
@@ -88,7 +88,7 @@ impl Embedding {
     }
 
     /// The nearest-neighbour index over actions (discrete actions only).
-    pub fn nearest(&mut self) -> Option<&mut NearestAction> {
-        self.nearest.as_mut()
+    pub fn nearest(&self) -> Option<&NearestAction> {
+        self.nearest.as_ref()
     }
 }

@@ -6,9 +6,9 @@
 //! `-log P(s'|s,a)`; f is trained on detached `g(a)`. RL losses never touch this model.
 //!
 //! Layout: `model` (the networks and losses), `nearest` (f for discrete
-//! actions), `replay` (the bounded transition buffer), `trainer` (pre-training, continuous
-//! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `nn` (burn
-//! building blocks the learner shares), `service` (the gRPC embedder service). The settings
+//! actions), `replay` (the bounded transition buffer), `representation` (the seam: the
+//! trait every trained representation implements), `trainer` (pre-training, continuous
+//! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `service` (the gRPC embedder service). The settings
 //! are `jsae_proto::settings::EmbeddingConfig`.
 
 #![forbid(unsafe_code)]
@@ -16,8 +16,8 @@
 mod embedding;
 mod model;
 mod nearest;
-pub mod nn;
 pub mod replay;
+mod representation;
 pub mod service;
 mod trainer;
 
@@ -25,4 +25,5 @@ pub use embedding::Embedding;
 pub use jsae_proto::settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
+pub use representation::RepresentationModel;
 pub use trainer::{EmbedderStats, EmbedderTrainer};

@@ -14,7 +14,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::EmbeddingConfig;
-use crate::nn::{self, Mlp, MlpConfig, ObsNorm};
+use jsae_nn::{self as nn, Mlp, MlpConfig, ObsNorm};
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]

@@ -9,6 +9,8 @@
 pub struct NearestAction {
     /// `columns[j][a]` = component `j` of `g(a)`.
     columns: Vec<Vec<f32>>,
+    /// Number of actions.
+    n: usize,
     scratch: Vec<f32>,
 }
 
@@ -21,18 +23,19 @@ impl NearestAction {
             .collect();
         Self {
             columns,
+            n,
             scratch: vec![0.0; n],
         }
     }
 
     /// Number of actions.
     pub fn len(&self) -> usize {
-        self.scratch.len()
+        self.n
     }
 
     /// Whether the table is empty.
     pub fn is_empty(&self) -> bool {
-        self.scratch.is_empty()
+        self.n == 0
     }
 
     /// Embedding width `d`.
@@ -45,23 +48,30 @@ impl NearestAction {
         &self.columns[j]
     }
 
-    /// The action whose embedding is closest (Euclidean) to `e` (`[d]`); ties go to the
-    /// lowest index.
-    pub fn nearest(&mut self, e: &[f32]) -> u32 {
-        let dist = &mut self.scratch;
-        dist.iter_mut().for_each(|v| *v = 0.0);
+    /// Squared distances from `e` (`[d]`) to the first `rows` actions, into `dist`.
+    fn distances(&self, e: &[f32], rows: usize, dist: &mut Vec<f32>) {
+        dist.clear();
+        dist.resize(rows.min(self.len()), 0.0);
         for (col, &ej) in self.columns.iter().zip(e) {
             for (acc, &c) in dist.iter_mut().zip(col) {
                 let diff = c - ej;
                 *acc += diff * diff;
             }
         }
+    }
+
+    /// The action whose embedding is closest (Euclidean) to `e` (`[d]`); ties go to the
+    /// lowest index.
+    pub fn nearest(&mut self, e: &[f32]) -> u32 {
+        let mut dist = std::mem::take(&mut self.scratch);
+        self.distances(e, usize::MAX, &mut dist);
         let mut best = (f32::INFINITY, 0u32);
         for (a, &v) in dist.iter().enumerate() {
             if v < best.0 {
                 best = (v, a as u32);
             }
         }
+        self.scratch = dist;
         best.1
     }
 
@@ -74,11 +84,14 @@ impl NearestAction {
         }
     }
 
-    /// The `k` nearest actions of `e`, closest first (for recommendations).
-    pub fn k_nearest(&mut self, e: &[f32], k: usize) -> Vec<(u32, f32)> {
-        self.nearest(e);
-        let mut all: Vec<(u32, f32)> = self
-            .scratch
+    /// The `k` actions among the first `rows` whose embeddings are closest to `e`, as
+    /// `(action, distance)`, closest first (ties: lower index first). This is the one
+    /// k-nearest search: recommendations use it.
+    pub fn k_nearest(&self, e: &[f32], k: usize, rows: usize) -> Vec<(u32, f32)> {
+        let mut dist = Vec::new();
+        self.distances(e, rows, &mut dist);
+        let order = |a: &(u32, f32), b: &(u32, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
+        let mut all: Vec<(u32, f32)> = dist
             .iter()
             .enumerate()
             .map(|(a, &v)| (a as u32, v))
@@ -87,9 +100,10 @@ impl NearestAction {
         if k == 0 {
             return Vec::new();
         }
-        all.select_nth_unstable_by(k - 1, |a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all.select_nth_unstable_by(k - 1, order);
         all.truncate(k);
-        all.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+        all.sort_by(order);
+        all.iter_mut().for_each(|(_, v)| *v = v.sqrt());
         all
     }
 }
@@ -127,8 +141,12 @@ mod tests {
             let mut got = Vec::new();
             index.nearest_batch(&batch, &mut got);
             assert_eq!(got, want, "n={n} d={d}");
-            let k = index.k_nearest(&batch[..d], 3.min(n));
+            let k = index.k_nearest(&batch[..d], 3.min(n), n);
             assert_eq!(k[0].0, want[0]);
+            assert!(k.windows(2).all(|w| w[0].1 <= w[1].1));
+            let within = index.k_nearest(&batch[..d], n, n / 2);
+            assert_eq!(within.len(), n / 2);
+            assert!(within.iter().all(|(a, _)| (*a as usize) < n / 2));
         }
     }
 }

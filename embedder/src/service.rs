@@ -12,9 +12,10 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use jsae_proto::net;
-use jsae_proto::settings::TrainConfig;
+use jsae_proto::run_dir::{Checkpoints, Weights};
+use jsae_proto::settings::{ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{self, MAX_MESSAGE_BYTES, pb};
-use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch};
+use jsae_proto::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
@@ -54,20 +55,22 @@ impl pb::embedder_server::Embedder for EmbedderService {
             "embedder",
             |i, msg| {
                 let checked = if msg.rewards.len() > MAX_BATCH_TRANSITIONS {
-                    Err(Status::resource_exhausted(format!(
+                    Err(RpcError::ResourceExhausted(format!(
                         "transition batch {i}: {} transitions, at most {MAX_BATCH_TRANSITIONS}",
                         msg.rewards.len()
                     )))
                 } else {
                     TransitionBatch::try_from(msg)
                         .and_then(|b| b.validate(&self.states, &self.actions).map(|()| b))
-                        .map_err(|e| Status::invalid_argument(format!("transition batch {i}: {e}")))
+                        .map_err(|e| {
+                            RpcError::InvalidArgument(format!("transition batch {i}: {e}"))
+                        })
                 };
                 async move {
                     self.queue
                         .send(checked?)
                         .await
-                        .map_err(|_| Status::unavailable("the embedder is shutting down"))?;
+                        .map_err(|_| RpcError::shutting_down("embedder"))?;
                     self.accepted.fetch_add(1, Ordering::Relaxed);
                     Ok(())
                 }
@@ -86,28 +89,11 @@ impl pb::embedder_server::Embedder for EmbedderService {
         &self,
         _request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchEmbeddingStream>, Status> {
-        let mut published = self.published.clone();
-        let stop = net::stopped(&self.stopping);
-        let (tx, rx) = mpsc::channel(4);
-        tokio::spawn(async move {
-            tokio::pin!(stop);
-            loop {
-                let current = published.borrow_and_update().clone();
-                if let Some(s) = current {
-                    for chunk in wire::embedding_chunks(&s) {
-                        if tx.send(Ok(chunk)).await.is_err() {
-                            return;
-                        }
-                    }
-                }
-                tokio::select! {
-                    r = published.changed() => if r.is_err() { return },
-                    () = tx.closed() => return,
-                    () = &mut stop => return,
-                }
-            }
+        let stream = net::watch_stream(self.published.clone(), &self.stopping, |current| {
+            let chunks = current.as_deref().map(wire::embedding_chunks);
+            (chunks.unwrap_or_default(), false)
         });
-        Ok(Response::new(ReceiverStream::new(rx)))
+        Ok(Response::new(stream))
     }
 }
 
@@ -120,24 +106,9 @@ pub struct EmbedderOptions {
     pub checkpoint_dir: Option<PathBuf>,
 }
 
-fn write_checkpoint(dir: &std::path::Path, name: &str, bytes: &[u8]) {
-    let tmp = dir.join(format!(".{name}.tmp"));
-    let result = std::fs::create_dir_all(dir)
-        .and_then(|()| std::fs::write(&tmp, bytes))
-        .and_then(|()| std::fs::rename(&tmp, dir.join(name)));
-    if let Err(e) = result {
-        tracing::warn!("checkpoint {name} in {}: {e}", dir.display());
-    }
-}
-
 /// The latest embedding checkpoint in `dir`, if any.
 pub fn latest_checkpoint(dir: &std::path::Path) -> Option<EmbeddingSnapshot> {
-    let version = std::fs::read_to_string(dir.join("embedding-latest.version"))
-        .ok()?
-        .trim()
-        .parse()
-        .ok()?;
-    let bytes = std::fs::read(dir.join("embedding-latest.bpk")).ok()?;
+    let (version, bytes) = Checkpoints::new(dir).read_latest(Weights::Embedding)?;
     Some(EmbeddingSnapshot {
         version,
         bytes,
@@ -189,11 +160,19 @@ fn training_loop(
                 snap.decoder_loss
             );
             if let Some(dir) = &options.checkpoint_dir {
-                let versioned = format!("embedding-v{}.bpk", snap.version);
-                write_checkpoint(dir, &versioned, &snap.bytes);
-                write_checkpoint(dir, "embedding-latest.bpk", &snap.bytes);
-                let version = format!("{}\n", snap.version);
-                write_checkpoint(dir, "embedding-latest.version", version.as_bytes());
+                let ckpt = Checkpoints::new(dir);
+                let written = ckpt
+                    .write_versioned(Weights::Embedding, snap.version, &snap.bytes)
+                    .and_then(|()| {
+                        ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
+                    });
+                if let Err(e) = written {
+                    tracing::warn!(
+                        "embedding checkpoint v{} in {}: {e}",
+                        snap.version,
+                        dir.display()
+                    );
+                }
             }
             publish.send_replace(Some(Arc::new(snap)));
         }
@@ -229,23 +208,15 @@ pub async fn serve(
                 training_loop(&config, &states, &actions, queue_rx, &publish_tx, &options)
             })?
     };
-    let (health, health_service) = tonic_health::server::health_reporter();
-    health
-        .set_serving::<pb::embedder_server::EmbedderServer<EmbedderService>>()
-        .await;
     let server = pb::embedder_server::EmbedderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    tonic::transport::Server::builder()
-        .add_service(health_service)
-        .add_service(net::reflection()?)
-        .add_service(server)
-        .serve_with_incoming_shutdown(net::incoming(listener), async move {
-            shutdown.await;
-            tracing::info!("embedder: shutting down");
-            let _ = stop_tx.send(true);
-        })
-        .await?;
+    net::serve(server, listener, async move {
+        shutdown.await;
+        tracing::info!("embedder: shutting down");
+        let _ = stop_tx.send(true);
+    })
+    .await?;
     // The server (and with it every queue sender) is gone: the thread drains and stops.
     tokio::task::spawn_blocking(move || trainer.join())
         .await?
@@ -255,23 +226,19 @@ pub async fn serve(
 }
 
 /// The embedder's command line (CONTRACT.md).
-#[derive(Debug, Clone, clap::Args)]
+#[derive(Debug, Clone, clap::Parser)]
+#[command(
+    name = "jsae-embedder",
+    version,
+    about = "JSAE-RL embedder: trains phi/g/T/f on raw transitions and publishes snapshots"
+)]
 pub struct EmbedderArgs {
-    /// Address to listen on (`host:port`; port 0 picks a free one, printed on stdout).
-    #[arg(long, env = "JSAE_LISTEN")]
-    pub listen: String,
-    /// Environment.
-    #[arg(long, value_enum, env = "JSAE_ENV")]
-    pub env: jsae_proto::settings::EnvName,
-    /// Algorithm.
-    #[arg(long, value_enum, env = "JSAE_ALGO")]
-    pub algo: jsae_proto::settings::Algo,
-    /// Seed.
-    #[arg(long, env = "JSAE_SEED")]
-    pub seed: u64,
-    /// Settings file (TOML, as a run's config.toml).
-    #[arg(long, env = "JSAE_CONFIG")]
-    pub config: Option<PathBuf>,
+    /// `--listen`.
+    #[command(flatten)]
+    pub listen: ListenFlag,
+    /// `--env/--algo/--seed/--config`.
+    #[command(flatten)]
+    pub run: RunFlags,
     /// Directory for snapshot checkpoints (an embedder started on one continues from it).
     #[arg(long, env = "JSAE_CHECKPOINT_DIR")]
     pub checkpoint_dir: Option<PathBuf>,
@@ -280,38 +247,18 @@ pub struct EmbedderArgs {
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
 /// configuration, 1 when serving fails.
 pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
-    use std::process::ExitCode;
-    let config =
-        match TrainConfig::for_service(args.env, args.algo, args.seed, args.config.as_deref()) {
-            Ok(c) => c,
-            Err(e) => {
-                eprintln!("jsae-embedder: {e}");
-                return ExitCode::from(2);
-            }
-        };
-    net::init_logging();
-    let runtime = match net::runtime() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("jsae-embedder: {e}");
-            return ExitCode::FAILURE;
-        }
+    let config = args.run.layered().and_then(|c| c.validate().map(|()| c));
+    let options = EmbedderOptions {
+        checkpoint_dir: args.checkpoint_dir,
     };
-    let result = runtime.block_on(async {
-        let shutdown = net::shutdown_signal()?;
-        let listener = net::bind(&args.listen).await?;
-        let addr = listener.local_addr()?;
-        println!("jsae-embedder listening on {addr}");
-        let options = EmbedderOptions {
-            checkpoint_dir: args.checkpoint_dir,
-        };
-        serve(config, listener, options, shutdown).await
-    });
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("jsae-embedder: {e:#}");
-            ExitCode::FAILURE
-        }
-    }
+    net::service_main(
+        "jsae-embedder",
+        config.map_err(|e| e.to_string()),
+        |config, shutdown| async move {
+            let listener = net::bind(&args.listen.listen).await?;
+            println!("jsae-embedder listening on {}", listener.local_addr()?);
+            Ok(serve(config, listener, options, shutdown).await?)
+        },
+        |()| {},
+    )
 }

@@ -1,17 +1,19 @@
 //! The embedder's training loop: collect uniformly random transitions, pre-train phi/g/T/f
 //! on them, then keep training on the replay buffer on a schedule; every finished round
-//! publishes a new versioned snapshot.
+//! publishes a new versioned snapshot. The model is any [`RepresentationModel`] (JSAE's by
+//! default).
 
 use burn::optim::decay::WeightDecayConfig;
-use burn::optim::{AdamConfig, AdamWConfig, GradientsParams, ModuleOptimizer};
+use burn::optim::{AdamConfig, AdamWConfig, ModuleOptimizer};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
-use crate::nn::{self, BurnDevice, DeviceKind};
 use crate::replay::Replay;
+use crate::representation::RepresentationModel;
 use crate::{EmbeddingConfig, EmbeddingModel};
+use jsae_nn::{self as nn, BurnDevice, DeviceKind};
 
 /// What the trainer has done so far.
 #[derive(Debug, Clone, Default, PartialEq)]
@@ -30,11 +32,11 @@ pub struct EmbedderStats {
     pub overwritten: u64,
 }
 
-/// Owns the embedding model, its optimiser and the replay buffer.
+/// Owns the representation model (JSAE's by default), its optimiser and the replay buffer.
 #[derive(Debug)]
-pub struct EmbedderTrainer {
+pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
     config: EmbeddingConfig,
-    model: EmbeddingModel,
+    model: M,
     optim: OptimDebug,
     replay: Replay,
     rng: ChaCha8Rng,
@@ -52,7 +54,7 @@ impl std::fmt::Debug for OptimDebug {
 }
 
 impl EmbedderTrainer {
-    /// A trainer with a freshly initialised model.
+    /// A trainer with a freshly initialised JSAE model.
     pub fn new(
         config: EmbeddingConfig,
         states: &StateSpace,
@@ -62,6 +64,13 @@ impl EmbedderTrainer {
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x656d_6265_6464_6572);
         let model = EmbeddingModel::new(&config, states, actions, &mut rng, &device.train_device());
+        Self::with_model(config, model, rng)
+    }
+}
+
+impl<M: RepresentationModel> EmbedderTrainer<M> {
+    /// A trainer for `model` (on the training device), drawing minibatches with `rng`.
+    pub fn with_model(config: EmbeddingConfig, model: M, rng: ChaCha8Rng) -> Self {
         let optim = if config.decoupled_weight_decay {
             AdamWConfig::new()
                 .with_epsilon(1e-8)
@@ -74,7 +83,11 @@ impl EmbedderTrainer {
                 .init()
         };
         Self {
-            replay: Replay::new(config.replay_capacity, states, actions),
+            replay: Replay::new(
+                config.replay_capacity,
+                model.state_space(),
+                model.action_space(),
+            ),
             config,
             model,
             optim: OptimDebug(optim),
@@ -90,7 +103,7 @@ impl EmbedderTrainer {
     }
 
     /// The model being trained (autodiff device).
-    pub fn model(&self) -> &EmbeddingModel {
+    pub fn model(&self) -> &M {
         &self.model
     }
 
@@ -107,7 +120,7 @@ impl EmbedderTrainer {
     /// Validates and stores a batch of transitions.
     pub fn ingest(&mut self, batch: &TransitionBatch) -> Result<(), ValidationError> {
         batch.validate(self.model.state_space(), self.model.action_space())?;
-        self.model.update_state_stats(&batch.states);
+        self.model.observe_states(&batch.states);
         self.replay.push(batch);
         self.since_update += batch.len();
         self.stats.transitions += batch.len() as u64;
@@ -171,28 +184,16 @@ impl EmbedderTrainer {
         );
     }
 
-    /// One Adam step on the joint loss of phi, g, T and (detached) f; returns both losses.
+    /// One optimiser step of the model on a minibatch; returns (model loss, decoder loss).
     pub fn step(&mut self, mb: &crate::replay::Minibatch, lr: f64) -> (f32, f32) {
-        let (model_loss, decoder_loss) =
-            self.model.losses(&mb.states, &mb.actions, &mb.next_states);
-        let total = model_loss.clone() + decoder_loss.clone();
-        let grads = GradientsParams::from_grads(total.backward(), self.model.net());
-        let net = self.optim.0.step(lr, self.model.net().clone(), grads);
-        self.model.set_net(net);
+        let losses = self.model.train_step(&mut self.optim.0, mb, lr);
         self.stats.steps += 1;
-        (
-            model_loss.into_scalar::<f32>(),
-            decoder_loss.into_scalar::<f32>(),
-        )
+        losses
     }
 
     /// Mean losses over a fixed set of transitions, without training.
     pub fn evaluate(&self, mb: &crate::replay::Minibatch) -> (f32, f32) {
-        let valid = self
-            .model
-            .for_inference(&self.model.device().clone().inner());
-        let (a, b) = valid.losses(&mb.states, &mb.actions, &mb.next_states);
-        (a.into_scalar::<f32>(), b.into_scalar::<f32>())
+        self.model.evaluate(mb)
     }
 
     /// Continues from a saved snapshot (a restarted embedder): its weights and version, as
@@ -208,12 +209,9 @@ impl EmbedderTrainer {
 
     /// The current weights as a snapshot with the current version.
     pub fn snapshot(&self) -> Result<EmbeddingSnapshot, nn::RecordError> {
-        let inference = self
-            .model
-            .for_inference(&self.model.device().clone().inner());
         Ok(EmbeddingSnapshot {
             version: self.stats.version,
-            bytes: inference.to_bytes()?,
+            bytes: self.model.snapshot_bytes()?,
             model_loss: self.stats.model_loss,
             decoder_loss: self.stats.decoder_loss,
         })

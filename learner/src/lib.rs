@@ -7,13 +7,14 @@
 //! annealing) and publishes versioned policy snapshots.
 //!
 //! Layout: `policy` (Gaussian / categorical policy and critic), `gae`,
-//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `record`
-//! (metrics.csv and summary.json), `service` (the gRPC learner service). The settings are
+//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `metrics`
+//! (named scalars into a sink: metrics.csv), `record` (summary.json), `service` (the gRPC learner service). The settings are
 //! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
 
 pub mod gae;
+pub mod metrics;
 pub mod normalise;
 mod policy;
 mod ppo;
@@ -21,8 +22,9 @@ mod record;
 pub mod service;
 
 pub use jsae_proto::settings::PpoConfig;
+pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, update_scalars};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };
-pub use record::{MetricsWriter, RunMeta, Summary};
+pub use record::{RunMeta, Summary};

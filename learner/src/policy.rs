@@ -5,7 +5,7 @@
 use burn::module::{Module, Param};
 use burn::tensor::activation::log_softmax;
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use jsae_embedder::nn::{self, Mlp, MlpConfig, RecordError};
+use jsae_nn::{self as nn, Mlp, MlpConfig, RecordError};
 use jsae_proto::{ActionBatch, ActionSpace};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -13,7 +13,7 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::PpoConfig;
-use jsae_embedder::nn::ObsNorm;
+use jsae_nn::ObsNorm;
 
 const LOG_STD_MIN: f32 = -5.0;
 const LOG_STD_MAX: f32 = 2.0;
@@ -376,7 +376,7 @@ pub fn policy_shape(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jsae_embedder::nn::{BurnDevice, DeviceKind};
+    use jsae_nn::{BurnDevice, DeviceKind};
     use rand::SeedableRng;
 
     #[test]

@@ -1,117 +1,10 @@
-//! The run directory's result files: `metrics.csv` (one row per update, flushed as it is
-//! written so a crash loses nothing already reported) and `summary.json`.
+//! The run's result, `summary.json` (the metrics per update are `metrics`).
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use jsae_proto::EvalReport;
+use jsae_proto::run_dir::{RunDir, write_atomic};
 use serde::{Deserialize, Serialize};
-
-use crate::UpdateMetrics;
-
-const COLUMNS: &[&str] = &[
-    "update",
-    "env_steps",
-    "wall_seconds",
-    "return_mean",
-    "success_rate",
-    "episodes",
-    "policy_lag_mean",
-    "policy_lag_max",
-    "dropped_lag",
-    "dropped_embedding",
-    "policy_loss",
-    "value_loss",
-    "entropy",
-    "approx_kl",
-    "clip_frac",
-    "grad_norm",
-    "explained_variance",
-    "lr",
-    "epochs",
-    "log_std_mean",
-    "policy_version",
-    "embedding_version",
-    "embedding_loss",
-];
-
-/// Writes `metrics.csv` row by row.
-#[derive(Debug)]
-pub struct MetricsWriter {
-    out: BufWriter<File>,
-    path: PathBuf,
-}
-
-fn opt(v: Option<f64>) -> String {
-    v.map(|x| format!("{x}")).unwrap_or_default()
-}
-
-impl MetricsWriter {
-    /// Creates `dir/metrics.csv` with its header.
-    pub fn create(dir: &Path) -> std::io::Result<Self> {
-        let path = dir.join("metrics.csv");
-        let mut out = BufWriter::new(File::create(&path)?);
-        writeln!(out, "{}", COLUMNS.join(","))?;
-        out.flush()?;
-        Ok(Self { out, path })
-    }
-
-    /// Opens `dir/metrics.csv` to add rows (a resumed learner), or creates it.
-    pub fn append(dir: &Path) -> std::io::Result<Self> {
-        let path = dir.join("metrics.csv");
-        if !path.exists() {
-            return Self::create(dir);
-        }
-        let file = std::fs::OpenOptions::new().append(true).open(&path)?;
-        Ok(Self {
-            out: BufWriter::new(file),
-            path,
-        })
-    }
-
-    /// The file's path.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    /// Appends one update's row; `embedding_loss` is the latest embedding model loss.
-    pub fn write(
-        &mut self,
-        m: &UpdateMetrics,
-        wall_seconds: f64,
-        embedding_loss: Option<f32>,
-    ) -> std::io::Result<()> {
-        writeln!(
-            self.out,
-            "{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
-            m.update,
-            m.env_steps,
-            wall_seconds,
-            opt(m.return_mean),
-            opt(m.success_rate),
-            m.episodes,
-            m.policy_lag_mean,
-            m.policy_lag_max,
-            m.dropped_lag,
-            m.dropped_embedding,
-            m.policy_loss,
-            m.value_loss,
-            m.entropy,
-            m.approx_kl,
-            m.clip_frac,
-            m.grad_norm,
-            m.explained_variance,
-            m.lr,
-            m.epochs,
-            m.log_std_mean,
-            m.policy_version,
-            m.embedding_version,
-            opt(embedding_loss.map(f64::from)),
-        )?;
-        self.out.flush()
-    }
-}
 
 /// What identifies a run in its summary.
 #[derive(Debug, Clone, PartialEq)]
@@ -222,13 +115,12 @@ impl Summary {
         }
     }
 
-    /// Writes `dir/summary.json` (via a temporary file, so it is whole or absent).
-    pub fn write(&self, dir: &Path) -> std::io::Result<PathBuf> {
-        let path = dir.join("summary.json");
-        let tmp = dir.join("summary.json.tmp");
+    /// Writes the run directory's `summary.json` (via a temporary file, so it is whole or
+    /// absent).
+    pub fn write(&self, dir: &RunDir) -> std::io::Result<PathBuf> {
+        let path = dir.summary_json();
         let text = serde_json::to_string_pretty(self).map_err(std::io::Error::other)?;
-        std::fs::write(&tmp, text + "\n")?;
-        std::fs::rename(&tmp, &path)?;
+        write_atomic(&path, (text + "\n").as_bytes())?;
         Ok(path)
     }
 }

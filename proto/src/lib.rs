@@ -10,7 +10,8 @@
 //! `messages` (the messages), `validate` (checks every receiver runs on input), `settings`
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
-//! health, reflection, shutdown signals, backoff) and `client` (following snapshot streams
+//! health, reflection, shutdown signals, a service's `main`, backoff), `status` (the one
+//! mapping of refusals to gRPC codes), `run_dir` (the run directory's file names) and `client` (following snapshot streams
 //! with reconnection).
 
 #![forbid(unsafe_code)]
@@ -19,8 +20,10 @@ mod batch;
 pub mod client;
 mod messages;
 pub mod net;
+pub mod run_dir;
 pub mod settings;
 mod spaces;
+mod status;
 mod validate;
 pub mod wire;
 
@@ -29,4 +32,5 @@ pub use messages::{
     EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot, RolloutFragment, TransitionBatch,
 };
 pub use spaces::{ActionSpace, StateSpace};
+pub use status::RpcError;
 pub use validate::ValidationError;

@@ -1,6 +1,6 @@
-//! What every service and client shares on the network: binding with TCP_NODELAY, the
-//! health and reflection services, the SIGINT/SIGTERM shutdown signal, and connecting with
-//! backoff.
+//! What every service and client shares on the network: binding with TCP_NODELAY, serving a
+//! service beside health and reflection, the SIGINT/SIGTERM shutdown signal, a service
+//! process's `main`, server streams that follow a watched value, and connecting with backoff.
 
 use std::time::Duration;
 
@@ -138,9 +138,7 @@ where
     loop {
         let msg = tokio::select! {
             m = stream.message() => m.map_err(crate::wire::receive_error)?,
-            () = &mut stop => {
-                return Err(tonic::Status::unavailable(format!("the {service} is shutting down")))
-            }
+            () = &mut stop => return Err(crate::RpcError::shutting_down(service).into()),
         };
         let Some(msg) = msg else { return Ok(count) };
         each(count, msg).await?;
@@ -155,4 +153,160 @@ pub fn runtime() -> std::io::Result<tokio::runtime::Runtime> {
         .worker_threads(2)
         .enable_all()
         .build()
+}
+
+/// Why serving stopped with an error.
+#[derive(Debug, thiserror::Error)]
+pub enum ServeError {
+    /// The reflection service could not be built.
+    #[error("reflection: {0}")]
+    Reflection(#[from] tonic_reflection::server::Error),
+    /// The transport failed.
+    #[error("{0}")]
+    Transport(#[from] tonic::transport::Error),
+}
+
+/// Serves `service` on `listener` beside `grpc.health.v1.Health` (reporting it SERVING) and
+/// server reflection, until `shutdown` resolves. Every service of the project is served so.
+pub async fn serve<S>(
+    service: S,
+    listener: TcpListener,
+    shutdown: impl std::future::Future<Output = ()> + Send,
+) -> Result<(), ServeError>
+where
+    S: tonic::codegen::Service<
+            tonic::codegen::http::Request<tonic::body::Body>,
+            Response = tonic::codegen::http::Response<tonic::body::Body>,
+            Error = std::convert::Infallible,
+        > + tonic::server::NamedService
+        + Clone
+        + Send
+        + Sync
+        + 'static,
+    S::Future: Send + 'static,
+{
+    let (health, health_service) = tonic_health::server::health_reporter();
+    health.set_serving::<S>().await;
+    tonic::transport::Server::builder()
+        .add_service(health_service)
+        .add_service(reflection()?)
+        .add_service(service)
+        .serve_with_incoming_shutdown(incoming(listener), shutdown)
+        .await?;
+    Ok(())
+}
+
+/// A server stream that follows `state`: for the current value and every change after it,
+/// `events` gives the messages to send and whether they are the last. The stream ends then,
+/// when the client goes away, or when `stopping` turns true.
+pub fn watch_stream<T, M, F>(
+    mut state: tokio::sync::watch::Receiver<T>,
+    stopping: &tokio::sync::watch::Receiver<bool>,
+    mut events: F,
+) -> tokio_stream::wrappers::ReceiverStream<Result<M, tonic::Status>>
+where
+    T: Clone + Send + Sync + 'static,
+    M: Send + 'static,
+    F: FnMut(&T) -> (Vec<M>, bool) + Send + 'static,
+{
+    let stop = stopped(stopping);
+    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    tokio::spawn(async move {
+        tokio::pin!(stop);
+        loop {
+            let now = state.borrow_and_update().clone();
+            let (messages, last) = events(&now);
+            for m in messages {
+                if tx.send(Ok(m)).await.is_err() {
+                    return;
+                }
+            }
+            if last {
+                return;
+            }
+            tokio::select! {
+                r = state.changed() => if r.is_err() { return },
+                () = tx.closed() => return,
+                () = &mut stop => return,
+            }
+        }
+    });
+    tokio_stream::wrappers::ReceiverStream::new(rx)
+}
+
+/// Why a service process stops with an error: exit 1, or 2 for a configuration found bad
+/// only after start (a run directory's settings that were still to be written).
+#[derive(Debug)]
+pub struct Failure {
+    code: u8,
+    message: String,
+}
+
+impl Failure {
+    /// A bad configuration (exit 2).
+    pub fn config(reason: impl std::fmt::Display) -> Self {
+        Self {
+            code: 2,
+            message: reason.to_string(),
+        }
+    }
+}
+
+impl<E: std::fmt::Display> From<E> for Failure {
+    fn from(e: E) -> Self {
+        Self {
+            code: 1,
+            message: format!("{e:#}"),
+        }
+    }
+}
+
+/// The SIGINT/SIGTERM future handed to a service's body.
+pub type Shutdown = std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send + 'static>>;
+
+/// The one `main` of every service process (`name` prefixes its messages): a bad
+/// configuration (`config` is `Err`) exits 2 with a one-line reason before anything starts;
+/// then logging, the runtime and the SIGINT/SIGTERM future, and `body` runs with the
+/// configuration and that future. Its `Ok` value goes to `done` (which reports it) and the
+/// process exits 0; a [`Failure`] is printed and exits with its code.
+pub fn service_main<C, T, Fut>(
+    name: &str,
+    config: Result<C, String>,
+    body: impl FnOnce(C, Shutdown) -> Fut,
+    done: impl FnOnce(T),
+) -> std::process::ExitCode
+where
+    Fut: std::future::Future<Output = Result<T, Failure>>,
+{
+    use std::process::ExitCode;
+    let config = match config {
+        Ok(c) => c,
+        Err(reason) => {
+            eprintln!("{name}: {reason}");
+            return ExitCode::from(2);
+        }
+    };
+    init_logging();
+    let runtime = match runtime() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("{name}: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    let result = runtime.block_on(async {
+        let shutdown = shutdown_signal()?;
+        body(config, Box::pin(shutdown)).await
+    });
+    runtime.shutdown_timeout(Duration::from_secs(2));
+    match result {
+        Ok(value) => {
+            done(value);
+            ExitCode::SUCCESS
+        }
+        Err(failure) => {
+            eprintln!("{name}: {}", failure.message);
+            ExitCode::from(failure.code)
+        }
+    }
 }

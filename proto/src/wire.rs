@@ -38,10 +38,11 @@ pub const MAX_SNAPSHOT_BYTES: u64 = 256 * 1024 * 1024;
 /// above the size limit as OUT_OF_RANGE; it is RESOURCE_EXHAUSTED.
 pub fn receive_error(status: tonic::Status) -> tonic::Status {
     if status.code() == tonic::Code::OutOfRange && status.message().contains("too large") {
-        tonic::Status::resource_exhausted(format!(
+        crate::RpcError::ResourceExhausted(format!(
             "{} (MAX_MESSAGE_BYTES = {MAX_MESSAGE_BYTES})",
             status.message()
         ))
+        .into()
     } else {
         status
     }

@@ -1,5 +1,5 @@
 //! Which burn device the models run on, chosen at run time (the burn side is in
-//! `jsae_embedder::nn`).
+//! `jsae_nn`).
 
 use serde::{Deserialize, Serialize};
 

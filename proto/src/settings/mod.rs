@@ -7,6 +7,7 @@
 mod device;
 mod embedding;
 mod envs;
+mod flags;
 mod ppo;
 mod run;
 
@@ -16,5 +17,6 @@ pub use envs::{
     EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
     SessionSource, SlotmachineConfig, SyntheticConfig, validate_env_config,
 };
+pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
 pub use ppo::PpoConfig;
-pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, TrainConfig};
+pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, Representation, TrainConfig};

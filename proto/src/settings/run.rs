@@ -34,9 +34,46 @@ impl Algo {
         }
     }
 
-    /// Whether it learns embeddings with the embedder.
-    pub fn uses_embedding(self) -> bool {
-        matches!(self, Self::Jsae)
+    /// The representation the algorithm's policy sees and acts through.
+    pub fn representation(self) -> Representation {
+        match self {
+            Self::Jsae => Representation::Jsae,
+            Self::Ppo => Representation::Raw,
+            Self::Ae => Representation::AutoEncoder,
+            Self::Ra => Representation::ActionRepresentation,
+        }
+    }
+}
+
+/// What sits between the environment and PPO: raw states and actions, or a representation
+/// model the embedder trains. Every component asks it its questions (does it embed states?
+/// actions? is there an embedder to follow?) instead of testing algorithm names.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Representation {
+    /// Raw states in, raw actions out (plain PPO).
+    Raw,
+    /// Jointly-learned state and action embeddings: phi, g, T, f (the method).
+    Jsae,
+    /// Auto-encoder embeddings of states and of actions (baseline; not available yet).
+    AutoEncoder,
+    /// Chandak et al.'s action representations, raw states (baseline; not available yet).
+    ActionRepresentation,
+}
+
+impl Representation {
+    /// An embedder service trains it from the actors' transitions (and must be followed).
+    pub fn needs_embedder(self) -> bool {
+        !matches!(self, Self::Raw)
+    }
+
+    /// The policy's input is `phi(s)` rather than the raw state's features.
+    pub fn embeds_states(self) -> bool {
+        matches!(self, Self::Jsae | Self::AutoEncoder)
+    }
+
+    /// The policy acts in an action-embedding space whose points f decodes to actions.
+    pub fn decodes_actions(self) -> bool {
+        !matches!(self, Self::Raw)
     }
 }
 
@@ -359,29 +396,6 @@ impl TrainConfig {
         Ok(c)
     }
 
-    /// The configuration a service process runs with: `file` over the defaults for `env` and
-    /// `algo`, and `seed` over both.
-    pub fn for_service(
-        env: EnvName,
-        algo: Algo,
-        seed: u64,
-        file: Option<&Path>,
-    ) -> Result<Self, ConfigError> {
-        let mut c = Self::from_layers(Some(env), Some(algo), file)?;
-        if c.env != env || c.algo != algo {
-            return Err(ConfigError::Invalid(format!(
-                "the settings file names --env {} --algo {}, the command line --env {} --algo {}",
-                c.env.as_str(),
-                c.algo.as_str(),
-                env.as_str(),
-                algo.as_str()
-            )));
-        }
-        c.seed = seed;
-        c.validate()?;
-        Ok(c)
-    }
-
     /// Seed of the deterministic evaluation episodes at the end of a run.
     pub fn eval_seed(&self) -> u64 {
         self.seed ^ 0xE7A1
@@ -428,7 +442,7 @@ impl TrainConfig {
             return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
         }
         self.ppo.validate().map_err(ConfigError::Invalid)?;
-        if self.algo.uses_embedding() {
+        if self.algo.representation().needs_embedder() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;
             if self.embedding.pretrain_transitions as u64 >= self.env_steps {
                 return bad(format!(

@@ -1,0 +1,211 @@
+//! `jsae bench`: PPO update throughput and batch-1 / batch-64 inference latency on both
+//! burn devices, measured in one run so the ratios between them are meaningful; the
+//! transport (`transport`), MuJoCo stepping (`mujoco`) and Recommender (`recommender`)
+//! benchmarks are the submodules.
+
+pub mod mujoco;
+pub mod recommender;
+pub mod transport;
+
+use std::time::Instant;
+
+use jsae_embedder::EmbedderTrainer;
+use jsae_learner::{Ingested, Learner};
+use jsae_nn::{BurnDevice, DeviceKind};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+use jsae_envs::EnvName;
+use jsae_learner::policy_shape;
+use jsae_proto::settings::{Algo, TrainConfig};
+
+use jsae_actor::worker::ActorWorker;
+
+/// Measurements on one device.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeviceBench {
+    /// The device.
+    pub device: DeviceKind,
+    /// PPO update throughput: samples processed per second (samples x epochs / time).
+    pub update_samples_per_s: f64,
+    /// Milliseconds per PPO update of one batch.
+    pub update_ms: f64,
+    /// Inference `phi -> pi_i (sample) -> f` for one state, microseconds.
+    pub infer_batch1_us: f64,
+    /// Inference `phi -> pi_i (sample) -> f` for 64 states, microseconds.
+    pub infer_batch64_us: f64,
+    /// A whole actor step of 1 environment (inference, env step, bookkeeping), microseconds.
+    pub act_batch1_us: f64,
+    /// A whole actor step of 64 environments, microseconds.
+    pub act_batch64_us: f64,
+}
+
+/// Times `phi -> pi_i -> f` on `batch` random states with the worker's current weights.
+fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: DeviceKind) -> f64 {
+    let (Some(embedding), Some(policy)) = (worker.embedding(), worker.policy()) else {
+        return f64::NAN;
+    };
+    let mut embedding = embedding.clone();
+    let policy = policy.for_inference(&device.device());
+    let n = match worker.state_space() {
+        jsae_proto::StateSpace::Categorical { sizes } => sizes[0] as u32,
+        jsae_proto::StateSpace::Real { .. } => 1,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(7);
+    let states = jsae_proto::StateBatch::Categorical {
+        factors: 1,
+        data: (0..batch).map(|_| rng.random_range(0..n)).collect(),
+    };
+    let head = policy.head().action_space();
+    let (mut x, mut logp) = (Vec::new(), Vec::new());
+    let mut e = jsae_proto::ActionBatch::empty(&head);
+    let mut a = jsae_proto::ActionBatch::empty(worker.action_space());
+    let mut once = |x: &mut Vec<f32>,
+                    logp: &mut Vec<f32>,
+                    e: &mut jsae_proto::ActionBatch,
+                    a: &mut jsae_proto::ActionBatch| {
+        e.clear();
+        a.clear();
+        logp.clear();
+        embedding.embed_states(&states, x);
+        policy.act(x, false, &mut rng, e, logp);
+        if let jsae_proto::ActionBatch::Continuous { data, .. } = &*e {
+            embedding.decode(data, a);
+        }
+    };
+    for _ in 0..10 {
+        once(&mut x, &mut logp, &mut e, &mut a);
+    }
+    let t = Instant::now();
+    for _ in 0..repeats {
+        once(&mut x, &mut logp, &mut e, &mut a);
+    }
+    t.elapsed().as_secs_f64() * 1e6 / repeats as f64
+}
+
+pub(crate) fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKind) -> ActorWorker {
+    let mut c = config.clone();
+    c.envs_per_actor = envs;
+    let mut worker = ActorWorker::new(&c, 0, device).expect("benchmark environments need no data");
+    let (s, a) = (worker.state_space().clone(), worker.action_space().clone());
+    let mut emb = EmbedderTrainer::new(c.embedding.clone(), &s, &a, c.seed, device);
+    let rollout = worker.collect(c.embedding.pretrain_transitions.div_ceil(envs));
+    let _ = emb.ingest(&rollout.transitions);
+    if let Ok(Some(snap)) = emb.poll() {
+        let _ = worker.set_embedding(&snap);
+    }
+    let (input, head) = policy_shape(&c, &s, &a);
+    let learner = Learner::new(c.ppo.clone(), input, head, 1, c.seed, device);
+    if let Ok(snap) = learner.snapshot() {
+        let _ = worker.set_policy(&snap);
+    }
+    worker
+}
+
+fn time_collect(worker: &mut ActorWorker, envs: usize, repeats: usize) -> f64 {
+    worker.collect(8);
+    let t = Instant::now();
+    worker.collect(repeats);
+    let _ = envs;
+    t.elapsed().as_secs_f64() * 1e6 / repeats as f64
+}
+
+/// Runs the benchmark on one device (gridworld-discrete, JSAE, 512 actions).
+pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
+    let mut config = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
+    config.embedding.pretrain_transitions = 2_000;
+    config.embedding.pretrain_epochs = 2;
+    let repeats = if quick { 200 } else { 2_000 };
+    let mut w1 = trained_worker(&config, 1, device);
+    let infer_batch1_us = time_inference(&w1, 1, repeats, device);
+    let infer_batch64_us = time_inference(&w1, 64, repeats / 4, device);
+    let act_batch1_us = time_collect(&mut w1, 1, repeats);
+    let mut w64 = trained_worker(&config, 64, device);
+    let act_batch64_us = time_collect(&mut w64, 64, repeats / 10);
+
+    // PPO update on a synthetic batch of the default size.
+    let batch = config.round_steps();
+    let (input, head) = policy_shape(&config, w1.state_space(), w1.action_space());
+    let mut ppo = config.ppo.clone();
+    ppo.batch_steps = batch;
+    let mut learner = Learner::new(ppo.clone(), input, head, 10 * batch as u64, 1, device);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let mut w = w64;
+    let updates = if quick { 1 } else { 3 };
+    let mut elapsed = 0.0;
+    for _ in 0..updates {
+        let mut fragments = Vec::new();
+        while fragments
+            .iter()
+            .map(|f: &jsae_proto::RolloutFragment| f.len())
+            .sum::<usize>()
+            < batch
+        {
+            fragments.extend(w.collect(config.rollout_len).fragments);
+        }
+        for f in &mut fragments {
+            f.policy_version = learner.version();
+            f.rewards
+                .iter_mut()
+                .for_each(|r| *r += rng.random_range(-0.01..0.01));
+        }
+        let t = Instant::now();
+        for f in fragments {
+            if let Ok(Ingested::Updated(_)) = learner.ingest(f) {
+                break;
+            }
+        }
+        elapsed += t.elapsed().as_secs_f64();
+    }
+    let update_s = elapsed / updates as f64;
+    DeviceBench {
+        device,
+        update_samples_per_s: (batch * ppo.epochs) as f64 / update_s,
+        update_ms: update_s * 1e3,
+        infer_batch1_us,
+        infer_batch64_us,
+        act_batch1_us,
+        act_batch64_us,
+    }
+}
+
+/// Runs the benchmark on both devices and formats the table with flex/ndarray ratios.
+pub fn run(quick: bool) -> String {
+    let flex = bench_device(DeviceKind::Flex, quick);
+    let nd = bench_device(DeviceKind::Ndarray, quick);
+    let mut out = String::new();
+    out.push_str("gridworld-discrete, jsae, 512 actions, x 8-d, e 2-d, policy 64x64, batch 2048, 10 epochs of minibatch 256\n");
+    out.push_str(&format!(
+        "{:<34} {:>12} {:>12} {:>16}\n",
+        "measure", "flex", "ndarray", "ndarray / flex"
+    ));
+    let rows = [
+        (
+            "PPO update (samples/s, higher=better)",
+            flex.update_samples_per_s,
+            nd.update_samples_per_s,
+        ),
+        ("PPO update (ms per batch)", flex.update_ms, nd.update_ms),
+        (
+            "inference, batch 1 (us)",
+            flex.infer_batch1_us,
+            nd.infer_batch1_us,
+        ),
+        (
+            "inference, batch 64 (us)",
+            flex.infer_batch64_us,
+            nd.infer_batch64_us,
+        ),
+        ("act step, 1 env (us)", flex.act_batch1_us, nd.act_batch1_us),
+        (
+            "act step, 64 envs (us)",
+            flex.act_batch64_us,
+            nd.act_batch64_us,
+        ),
+    ];
+    for (name, f, n) in rows {
+        out.push_str(&format!("{name:<34} {f:>12.1} {n:>12.1} {:>16.2}\n", n / f));
+    }
+    out.push_str("(inference = phi, pi_i sample, nearest-neighbour f; act step = that plus env steps and bookkeeping)\n");
+    out
+}

@@ -1,0 +1,299 @@
+//! The `jsae` subcommands and what each one runs.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Args, Subcommand};
+use jsae_nn::DeviceKind;
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{EnvName, RunFlags, TrainConfig};
+
+use crate::launch;
+use crate::progress::Progress;
+use crate::train_one_process;
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Train on this machine (embedder, learner and actors) and print the summary.
+    Train(TrainArgs),
+    /// Measure PPO update throughput and inference latency on both burn devices, and the
+    /// services' ingest rates over loopback gRPC against in-process channels.
+    Bench {
+        /// Fewer repetitions (a smoke run).
+        #[arg(long)]
+        quick: bool,
+        /// Only the transport measurements.
+        #[arg(long)]
+        transport: bool,
+        /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
+        /// env, the actor with batched inference, Gymnasium).
+        #[arg(long)]
+        mujoco: bool,
+        /// Only the Recommender service's latency (p50, p99) and throughput at concurrency
+        /// 64 over loopback gRPC.
+        #[arg(long)]
+        recommender: bool,
+        /// Environments per actor in the MuJoCo actor measurement.
+        #[arg(long, default_value_t = 16)]
+        envs: usize,
+    },
+    /// Draw the plots of a run directory (one the services wrote, for example by hand).
+    Plot {
+        /// The run directory (holding config.toml and metrics.csv).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Replay an initial state and actions through a MuJoCo environment (parity check).
+    EnvReplay {
+        /// half-cheetah or ant.
+        #[arg(long, value_enum)]
+        env: EnvName,
+        /// JSON lines: `{"qpos": [...], "qvel": [...]}`, then `{"action": [...]}` per step.
+        #[arg(long)]
+        input: PathBuf,
+        /// JSON lines written: `{"obs": [...], "reward": r, "terminated": b}` per step.
+        #[arg(long)]
+        output: PathBuf,
+    },
+    /// The embedder service (as `jsae-embedder`).
+    Embedder(jsae_embedder::service::EmbedderArgs),
+    /// The learner service (as `jsae-learner`).
+    Learner(jsae_learner::service::LearnerArgs),
+    /// An actor (as `jsae-actor`).
+    Actor(jsae_actor::service::ActorArgs),
+    /// Returns of reference recommenders (uniformly random, and the myopic most likely
+    /// next item read from the n-gram model) under a run's evaluation protocol.
+    RecommenderBaseline {
+        /// Settings file (`[environment.recommender]` picks the data).
+        #[arg(long, env = "JSAE_CONFIG")]
+        config: Option<PathBuf>,
+        /// Episodes per policy.
+        #[arg(long, default_value_t = 1000)]
+        episodes: usize,
+        /// Seed (the evaluation seed of a run with this seed is used).
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+    },
+    /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
+    Health(crate::health::HealthArgs),
+    /// Ask a Recommender for recommendations (prints the answer as JSON).
+    Recommend(crate::recommender_client::AskArgs),
+    /// Send sessions from a JSON-lines file to a Recommender's SubmitSessions (prints the
+    /// summary as JSON; exit 1 when some were rejected).
+    SubmitSessions(crate::recommender_client::SubmitArgs),
+    /// The Recommender gRPC service: recommendations from a live run's or a finished run's
+    /// policy, and session submission into the session store.
+    Recommender(jsae_recommender::RecommenderArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    /// `--env/--algo/--seed/--config`.
+    #[command(flatten)]
+    pub run: RunFlags,
+    /// Env steps of the whole run [default: the settings file's, else the environment's:
+    /// 500000; 1000000 for half-cheetah and ant; 300000 for the recommender].
+    #[arg(long, env = "JSAE_ENV_STEPS")]
+    pub env_steps: Option<u64>,
+    /// Actor workers [default: 1].
+    #[arg(long, env = "JSAE_ACTORS")]
+    pub actors: Option<usize>,
+    /// Environments per actor [default: 16].
+    #[arg(long, env = "JSAE_ENVS")]
+    pub envs: Option<usize>,
+    /// Run directory [default: runs/ENV-ALGO-seedN].
+    #[arg(long, env = "JSAE_OUT")]
+    pub out: Option<PathBuf>,
+    /// burn device [default: flex].
+    #[arg(long, value_enum, env = "JSAE_DEVICE")]
+    pub device: Option<DeviceKind>,
+    /// Deterministic evaluation episodes at the end [default: the settings file's, else 20;
+    /// 200 for the recommender].
+    #[arg(long, env = "JSAE_EVAL_EPISODES")]
+    pub eval_episodes: Option<usize>,
+    /// Run every component in this process, in lockstep (deterministic for a seed) instead
+    /// of as separate service processes talking gRPC over loopback.
+    #[arg(long)]
+    pub one_process: bool,
+    /// No progress output.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// The settings `jsae train` runs with: the run flags' layers, then the other flags.
+fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
+    let mut c = a.run.layered().map_err(|e| e.to_string())?;
+    c.env_steps = a.env_steps.unwrap_or(c.env_steps);
+    c.actors = a.actors.unwrap_or(c.actors);
+    c.envs_per_actor = a.envs.unwrap_or(c.envs_per_actor);
+    c.device = a.device.unwrap_or(c.device);
+    c.eval_episodes = a.eval_episodes.unwrap_or(c.eval_episodes);
+    c.one_process |= a.one_process;
+    if let Some(out) = &a.out {
+        c.out = out.clone();
+    }
+    if c.out.as_os_str().is_empty() {
+        c.out = RunDir::default_path(c.env, c.algo, c.seed);
+    }
+    c.validate().map_err(|e| e.to_string())?;
+    Ok(c)
+}
+
+/// Runs a `jsae` subcommand.
+pub fn run(command: Command) -> ExitCode {
+    match command {
+        Command::Embedder(args) => return jsae_embedder::service::main(args),
+        Command::Learner(args) => return jsae_learner::service::main(args),
+        Command::Actor(args) => return jsae_actor::service::main(args),
+        Command::Recommender(args) => return jsae_recommender::main(args),
+        Command::Health(args) => return crate::health::main(args),
+        Command::Recommend(args) => return crate::recommender_client::main(args),
+        Command::SubmitSessions(args) => return crate::recommender_client::submit_main(args),
+        _ => {}
+    }
+    jsae_proto::net::init_logging();
+    match command {
+        Command::Train(args) => {
+            let config = match build_config(&args) {
+                Ok(c) => c,
+                Err(reason) => {
+                    eprintln!("jsae train: {reason}");
+                    return ExitCode::from(2);
+                }
+            };
+            let mut progress = Progress::new(config.env_steps, args.quiet);
+            let outcome = if config.one_process {
+                train_one_process(&config, &mut progress)
+            } else {
+                launch::current_exe()
+                    .and_then(|exe| launch::train_processes(&config, &exe, &mut progress))
+            };
+            match outcome {
+                Ok(outcome) => {
+                    let json = serde_json::to_string_pretty(&outcome.summary).unwrap_or_default();
+                    println!("{json}");
+                    println!("run directory: {}", outcome.dir.display());
+                    for p in &outcome.plots {
+                        println!("plot: {}", p.display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae train: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Bench {
+            quick,
+            transport,
+            mujoco,
+            recommender,
+            envs,
+        } => {
+            if recommender {
+                print!("{}", crate::bench::recommender::run(quick));
+                return ExitCode::SUCCESS;
+            }
+            if mujoco {
+                print!("{}", crate::bench::mujoco::run(envs.max(1), quick));
+                return ExitCode::SUCCESS;
+            }
+            if !transport {
+                print!("{}", crate::bench::run(quick));
+            }
+            print!("{}", crate::bench::transport::run(quick));
+            ExitCode::SUCCESS
+        }
+        Command::RecommenderBaseline {
+            config,
+            episodes,
+            seed,
+        } => {
+            let config =
+                TrainConfig::from_layers(Some(EnvName::Recommender), None, config.as_deref())
+                    .map_err(|e| e.to_string())
+                    .and_then(|mut c| {
+                        c.seed = seed;
+                        c.validate().map(|()| c).map_err(|e| e.to_string())
+                    });
+            let config = match config {
+                Ok(c) if c.env == EnvName::Recommender => c,
+                Ok(c) => {
+                    eprintln!(
+                        "jsae recommender-baseline: the settings are for --env {}",
+                        c.env.as_str()
+                    );
+                    return ExitCode::from(2);
+                }
+                Err(e) => {
+                    eprintln!("jsae recommender-baseline: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            match jsae_recommender::baseline::baselines(
+                &config,
+                episodes.max(1),
+                config.eval_seed(),
+            ) {
+                Ok(all) => {
+                    for b in all {
+                        println!("{}", serde_json::to_string(&b).unwrap_or_default());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae recommender-baseline: {e}");
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::Plot { out } => {
+            let run = RunDir::new(&out);
+            let config = match TrainConfig::from_layers(None, None, Some(&run.config_toml())) {
+                Ok(c) => c,
+                Err(e) => {
+                    eprintln!("jsae plot: {e}");
+                    return ExitCode::from(2);
+                }
+            };
+            match crate::plot::plot_run_dir(&run, &config) {
+                Ok(paths) => {
+                    for p in paths {
+                        println!("plot: {}", p.display());
+                    }
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae plot: {}: {e}", out.display());
+                    ExitCode::FAILURE
+                }
+            }
+        }
+        Command::EnvReplay { env, input, output } => {
+            let run = || -> Result<usize, String> {
+                let reader = std::fs::File::open(&input)
+                    .map(std::io::BufReader::new)
+                    .map_err(|e| format!("{}: {e}", input.display()))?;
+                let writer = std::fs::File::create(&output)
+                    .map(std::io::BufWriter::new)
+                    .map_err(|e| format!("{}: {e}", output.display()))?;
+                crate::replay::replay(env, reader, writer).map_err(|e| e.to_string())
+            };
+            match run() {
+                Ok(_) => ExitCode::SUCCESS,
+                Err(reason) => {
+                    eprintln!("jsae env-replay: {reason}");
+                    ExitCode::from(2)
+                }
+            }
+        }
+        Command::Embedder(_)
+        | Command::Learner(_)
+        | Command::Actor(_)
+        | Command::Recommender(_)
+        | Command::Health(_)
+        | Command::Recommend(_)
+        | Command::SubmitSessions(_) => ExitCode::SUCCESS,
+    }
+}

@@ -1,0 +1,265 @@
+//! `jsae train` with the services as separate processes on loopback: this executable is
+//! started again as `jsae embedder`, `jsae learner` and `jsae actor` (the same code as the
+//! `jsae-embedder`, `jsae-learner` and `jsae-actor` binaries), each on a free port it reports
+//! on stdout. The learner ends the run; then the embedder is stopped with SIGTERM (it writes
+//! its final checkpoint), the plots are drawn from the run directory and the summary read
+//! back. Each process's output goes to `DIR/logs/`. If anything fails, every child is killed.
+
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::sync::mpsc;
+use std::time::{Duration, Instant};
+
+use jsae_learner::{MetricsTable, Summary};
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::TrainConfig;
+
+use crate::plot;
+use crate::progress::Progress;
+use crate::train::{RunOutcome, TrainError};
+
+/// A child process, killed if still running when dropped.
+#[derive(Debug)]
+struct Service {
+    name: String,
+    child: Child,
+}
+
+impl Drop for Service {
+    fn drop(&mut self) {
+        if matches!(self.child.try_wait(), Ok(None)) {
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+        }
+    }
+}
+
+impl Service {
+    /// Starts `exe args..`, its stderr and the rest of its stdout into `logs/NAME.log`; waits
+    /// for the first stdout line when `listens` and returns the address it names.
+    fn start(
+        exe: &Path,
+        args: &[String],
+        name: &str,
+        run: &RunDir,
+        listens: bool,
+    ) -> Result<(Self, Option<String>), TrainError> {
+        let log_path = run.log(name);
+        let log = std::fs::File::create(&log_path).map_err(|source| TrainError::Io {
+            path: log_path.clone(),
+            source,
+        })?;
+        let err_log = log.try_clone().map_err(|source| TrainError::Io {
+            path: log_path.clone(),
+            source,
+        })?;
+        let mut child = Command::new(exe)
+            .args(args)
+            .stdin(Stdio::null())
+            .stdout(Stdio::piped())
+            .stderr(err_log)
+            .spawn()
+            .map_err(|e| TrainError::Service(format!("cannot start {name}: {e}")))?;
+        let stdout = child.stdout.take();
+        let (tx, rx) = mpsc::channel();
+        let mut log = log;
+        std::thread::spawn(move || {
+            let Some(out) = stdout else { return };
+            let mut first = true;
+            for line in BufReader::new(out).lines().map_while(Result::ok) {
+                if first {
+                    let _ = tx.send(line.clone());
+                    first = false;
+                }
+                let _ = writeln!(log, "{line}");
+            }
+        });
+        let service = Self {
+            name: name.to_string(),
+            child,
+        };
+        if !listens {
+            return Ok((service, None));
+        }
+        let line = rx.recv_timeout(Duration::from_secs(60)).map_err(|_| {
+            TrainError::Service(format!(
+                "{name} did not report its address (see {})",
+                log_path.display()
+            ))
+        })?;
+        let addr = line
+            .rsplit(' ')
+            .next()
+            .filter(|a| a.contains(':'))
+            .ok_or_else(|| TrainError::Service(format!("{name} said {line:?}")))?;
+        Ok((service, Some(format!("http://{addr}"))))
+    }
+
+    fn terminate(&mut self, timeout: Duration) {
+        if !matches!(self.child.try_wait(), Ok(None)) {
+            return;
+        }
+        let pid = self.child.id().to_string();
+        let _ = Command::new("kill").args(["-TERM", &pid]).status();
+        let deadline = Instant::now() + timeout;
+        while Instant::now() < deadline {
+            if !matches!(self.child.try_wait(), Ok(None)) {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
+        tracing::warn!("{} did not stop in {timeout:?}; killing it", self.name);
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
+    vec![
+        "--env".into(),
+        config.env.as_str().into(),
+        "--algo".into(),
+        config.algo.as_str().into(),
+        "--seed".into(),
+        config.seed.to_string(),
+        "--config".into(),
+        config_path.display().to_string(),
+    ]
+}
+
+/// The last data row of `metrics.csv`: (env steps, return, success rate).
+fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
+    let table = MetricsTable::read(path).ok()?;
+    let last = |name: &str| table.column(name).last().copied().flatten();
+    Some((
+        last("env_steps")? as u64,
+        last("return_mean"),
+        last("success_rate"),
+    ))
+}
+
+/// Trains with the embedder, the learner and `config.actors` actors as separate processes
+/// of `exe` (this program) and writes the run directory.
+pub fn train_processes(
+    config: &TrainConfig,
+    exe: &Path,
+    progress: &mut Progress,
+) -> Result<RunOutcome, TrainError> {
+    config.validate()?;
+    let run = RunDir::new(&config.out);
+    let dir = config.out.clone();
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| TrainError::Io { path, source }
+    };
+    let logs = run.logs();
+    std::fs::create_dir_all(&logs).map_err(io(&logs))?;
+    let ckpt = run.checkpoints();
+    std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
+    // a fresh run: a previous run's checkpoint would make the learner resume
+    ckpt.clear_latest();
+    let config_path = std::path::absolute(run.config_toml()).map_err(io(&dir))?;
+    std::fs::write(&config_path, config.to_toml()).map_err(io(&config_path))?;
+    let common = common_args(config, &config_path);
+    let listen = ["--listen".to_string(), "127.0.0.1:0".to_string()];
+
+    let mut embedder = None;
+    let mut embedder_url = None;
+    if config.algo.representation().needs_embedder() {
+        let mut args = vec!["embedder".to_string()];
+        args.extend(listen.iter().cloned());
+        args.extend(common.iter().cloned());
+        args.extend([
+            "--checkpoint-dir".into(),
+            std::path::absolute(ckpt.path())
+                .map_err(io(&dir))?
+                .display()
+                .to_string(),
+        ]);
+        let (service, url) = Service::start(exe, &args, "embedder", &run, true)?;
+        progress.note(&format!("embedder on {}", url.as_deref().unwrap_or("?")));
+        embedder = Some(service);
+        embedder_url = url;
+    }
+    let mut args = vec!["learner".to_string()];
+    args.extend(listen.iter().cloned());
+    args.extend(common.iter().cloned());
+    args.extend([
+        "--env-steps".into(),
+        config.env_steps.to_string(),
+        "--out".into(),
+        std::path::absolute(&dir)
+            .map_err(io(&dir))?
+            .display()
+            .to_string(),
+    ]);
+    if let Some(url) = &embedder_url {
+        args.extend(["--embedder".into(), url.clone()]);
+    }
+    let (mut learner, learner_url) = Service::start(exe, &args, "learner", &run, true)?;
+    let learner_url = learner_url.unwrap_or_default();
+    progress.note(&format!("learner on {learner_url}"));
+    let mut actors = Vec::new();
+    for id in 0..config.actors {
+        let mut args = vec!["actor".to_string(), "--learner".into(), learner_url.clone()];
+        args.extend(common.iter().cloned());
+        args.extend([
+            "--id".into(),
+            id.to_string(),
+            "--envs".into(),
+            config.envs_per_actor.to_string(),
+        ]);
+        if let Some(url) = &embedder_url {
+            args.extend(["--embedder".into(), url.clone()]);
+        }
+        let name = format!("actor-{id}");
+        actors.push(Service::start(exe, &args, &name, &run, false)?.0);
+    }
+
+    let metrics = run.metrics_csv();
+    let status = loop {
+        if let Ok(Some(status)) = learner.child.try_wait() {
+            break status;
+        }
+        if let Some(e) = embedder.as_mut()
+            && let Ok(Some(status)) = e.child.try_wait()
+        {
+            return Err(TrainError::Service(format!(
+                "the embedder exited ({status}); see {}",
+                run.log("embedder").display()
+            )));
+        }
+        if let Some((steps, ret, success)) = last_metrics(&metrics) {
+            progress.position(steps, ret, success);
+        }
+        std::thread::sleep(Duration::from_millis(500));
+    };
+    if !status.success() {
+        return Err(TrainError::Service(format!(
+            "the learner exited ({status}); see {}",
+            run.log("learner").display()
+        )));
+    }
+    for a in &mut actors {
+        a.terminate(Duration::from_secs(10));
+    }
+    if let Some(e) = embedder.as_mut() {
+        e.terminate(Duration::from_secs(30));
+    }
+    let text = std::fs::read_to_string(run.summary_json()).map_err(io(&dir))?;
+    let summary: Summary = serde_json::from_str(&text)
+        .map_err(|e| TrainError::Service(format!("summary.json: {e}")))?;
+    let plots = plot::plot_run_dir(&run, config).map_err(io(&dir))?;
+    progress.finish();
+    Ok(RunOutcome {
+        summary,
+        dir: dir.clone(),
+        plots,
+    })
+}
+
+/// This program's path, to start the services from.
+pub fn current_exe() -> Result<PathBuf, TrainError> {
+    std::env::current_exe().map_err(|e| TrainError::Service(format!("cannot find myself: {e}")))
+}

@@ -1,0 +1,24 @@
+//! The `jsae` command: training on this machine and the everyday tools.
+//!
+//! Layout: `train` (the one-process driver: embedder, learner and actors in lockstep, the
+//! deterministic mode), `launch` (the services started as processes on loopback), `progress`
+//! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
+//! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
+//! check), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
+//! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
+//! services themselves (`jsae embedder|learner|actor|recommender`).
+
+#![forbid(unsafe_code)]
+
+pub mod bench;
+pub mod commands;
+pub mod health;
+pub mod launch;
+pub mod oneshot;
+pub mod plot;
+pub mod progress;
+pub mod recommender_client;
+pub mod replay;
+pub mod train;
+
+pub use train::{RunOutcome, TrainError, train_one_process};

@@ -1,0 +1,165 @@
+//! One-process training: the actor workers, the embedder trainer and the learner each own
+//! their state and exchange only messages (transition batches, rollout fragments, weight
+//! snapshots, an evaluation report), here handed over in lockstep on one thread, so a seed
+//! gives the same run twice.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use jsae_embedder::EmbedderTrainer;
+use jsae_learner::{CsvMetrics, Ingested, Learner, MetricsSink, Summary, update_scalars};
+use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+
+use crate::plot;
+use crate::progress::Progress;
+use jsae_proto::settings::TrainConfig;
+
+use jsae_actor::worker::{ActorWorker, WorkerError};
+
+/// Why a run failed.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    /// Invalid configuration.
+    #[error(transparent)]
+    Config(#[from] jsae_proto::settings::ConfigError),
+    /// The run directory could not be written.
+    #[error("run directory {path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// A component refused a message.
+    #[error("learner: {0}")]
+    Learner(#[from] jsae_learner::LearnerError),
+    /// An embedding or policy snapshot could not be applied.
+    #[error("actor: {0}")]
+    Worker(#[from] WorkerError),
+    /// A service process failed.
+    #[error("{0}")]
+    Service(String),
+    /// The embedder refused a transition batch.
+    #[error("embedder: {0}")]
+    Embedder(String),
+}
+
+fn io(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// What a finished run left behind.
+#[derive(Debug, Clone)]
+pub struct RunOutcome {
+    /// The summary (also in `summary.json`).
+    pub summary: Summary,
+    /// The run directory.
+    pub dir: PathBuf,
+    /// Plots written.
+    pub plots: Vec<PathBuf>,
+}
+
+/// Trains in this process and writes the run directory.
+pub fn train_one_process(
+    config: &TrainConfig,
+    progress: &mut Progress,
+) -> Result<RunOutcome, TrainError> {
+    config.validate()?;
+    let started = Instant::now();
+    let run = RunDir::new(&config.out);
+    let dir = config.out.clone();
+    let ckpt = run.checkpoints();
+    std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
+    std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
+    let mut metrics = CsvMetrics::create(&run.metrics_csv()).map_err(io(&dir))?;
+
+    let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
+        .map(|id| ActorWorker::new(config, id, config.device))
+        .collect::<Result<_, _>>()?;
+    let (states, actions) = (
+        actors[0].state_space().clone(),
+        actors[0].action_space().clone(),
+    );
+    let mut learner = Learner::for_run(config);
+    let mut embedder = config.algo.representation().needs_embedder().then(|| {
+        EmbedderTrainer::new(
+            config.embedding.clone(),
+            &states,
+            &actions,
+            config.seed,
+            config.device,
+        )
+    });
+
+    let first = learner
+        .snapshot()
+        .map_err(jsae_learner::LearnerError::from)?;
+    for a in &mut actors {
+        a.set_policy(&first)?;
+    }
+    let mut last_embedding: Option<EmbeddingSnapshot> = None;
+    let mut last_policy: PolicySnapshot = first;
+    let total = |actors: &[ActorWorker]| actors.iter().map(ActorWorker::env_steps).sum::<u64>();
+    while total(&actors) < config.env_steps {
+        for i in 0..actors.len() {
+            let rollout = actors[i].collect(config.rollout_len);
+            if let Some(emb) = embedder.as_mut() {
+                emb.ingest(&rollout.transitions)
+                    .map_err(|e| TrainError::Embedder(e.to_string()))?;
+                if let Some(snap) = emb
+                    .poll()
+                    .map_err(|e| TrainError::Embedder(e.to_string()))?
+                {
+                    if snap.version == 1 {
+                        progress.note(&format!(
+                            "embedding pre-trained on {} random transitions (model loss {:.4})",
+                            emb.replay_len(),
+                            snap.model_loss
+                        ));
+                    }
+                    for a in &mut actors {
+                        a.set_embedding(&snap)?;
+                    }
+                    last_embedding = Some(snap);
+                }
+            }
+            learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
+            for fragment in rollout.fragments {
+                if let Ingested::Updated(report) = learner.ingest(fragment)? {
+                    let loss = last_embedding.as_ref().map(|s| s.model_loss);
+                    let row =
+                        update_scalars(&report.metrics, started.elapsed().as_secs_f64(), loss);
+                    metrics.record(&row).map_err(io(metrics.path()))?;
+                    progress.update(&report.metrics);
+                    for a in &mut actors {
+                        a.set_policy(&report.snapshot)?;
+                    }
+                    last_policy = report.snapshot;
+                }
+            }
+        }
+    }
+
+    progress.note("evaluating the deterministic policy");
+    let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
+    let wall = started.elapsed().as_secs_f64();
+    let summary = learner.summary(config, total(&actors), wall, &eval);
+    ckpt.write_versioned(Weights::Policy, last_policy.version, &last_policy.bytes)
+        .map_err(io(ckpt.path()))?;
+    if let Some(e) = &last_embedding {
+        ckpt.write_versioned(Weights::Embedding, e.version, &e.bytes)
+            .map_err(io(ckpt.path()))?;
+    }
+    summary.write(&run).map_err(io(&dir))?;
+    let plots = plot::write_run_plots(&run, config, actors[0].embedding()).map_err(io(&dir))?;
+    progress.finish();
+    Ok(RunOutcome {
+        summary,
+        dir,
+        plots,
+    })
+}

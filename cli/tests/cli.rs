@@ -1,0 +1,156 @@
+//! The `jsae` command line: help, bad flags and bad settings exit 2 with a one-line reason.
+
+use std::process::Command;
+
+fn jsae(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(args)
+        .output()
+        .expect("jsae runs")
+}
+
+#[test]
+fn help_answers_and_bad_input_exits_2_with_a_reason() {
+    let help = jsae(&["train", "--help"]);
+    assert!(help.status.success());
+    assert!(String::from_utf8_lossy(&help.stdout).contains("--env-steps"));
+
+    let bad_flag = jsae(&["train", "--env", "nowhere"]);
+    assert_eq!(bad_flag.status.code(), Some(2));
+
+    let bad_value = jsae(&["train", "--env-steps", "100", "--quiet"]);
+    assert_eq!(bad_value.status.code(), Some(2));
+    let reason = String::from_utf8_lossy(&bad_value.stderr);
+    assert_eq!(reason.trim().lines().count(), 1, "{reason}");
+    assert!(reason.contains("pretrain_transitions"), "{reason}");
+
+    let missing = jsae(&["train", "--config", "/nonexistent/run.toml"]);
+    assert_eq!(missing.status.code(), Some(2));
+}
+
+#[test]
+fn a_short_run_prints_its_summary() {
+    let dir = std::env::temp_dir().join(format!("jsae-cli-run-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let cfg = dir.with_extension("toml");
+    std::fs::write(
+        &cfg,
+        "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\n[embedding]\npretrain_transitions = 1000\npretrain_epochs = 2\n[ppo]\nepochs = 1\n",
+    )
+    .expect("config");
+    let out = jsae(&[
+        "train",
+        "--env",
+        "slotmachine",
+        "--algo",
+        "jsae",
+        "--seed",
+        "5",
+        "--env-steps",
+        "3000",
+        "--quiet",
+        "--out",
+        dir.to_str().unwrap_or("."),
+        "--config",
+        cfg.to_str().unwrap_or("."),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        stdout.contains("\"eval_return_mean\"") && stdout.contains("\"seed\": 5"),
+        "{stdout}"
+    );
+    assert!(dir.join("summary.json").exists() && dir.join("learning_curve.svg").exists());
+    // separate processes by default: each left its log
+    for name in ["embedder", "learner", "actor-0"] {
+        let log = dir.join("logs").join(format!("{name}.log"));
+        assert!(log.exists(), "{}", log.display());
+    }
+    let learner_log = std::fs::read_to_string(dir.join("logs/learner.log")).unwrap_or_default();
+    assert!(
+        learner_log.contains("listening on 127.0.0.1:"),
+        "{learner_log}"
+    );
+}
+
+#[test]
+fn the_services_answer_help_and_refuse_bad_input_with_exit_2() {
+    for service in ["embedder", "learner", "actor"] {
+        let help = jsae(&[service, "--help"]);
+        assert!(help.status.success(), "{service}");
+        assert!(String::from_utf8_lossy(&help.stdout).contains("--env"));
+        let bad = jsae(&[service, "--env", "nowhere"]);
+        assert_eq!(bad.status.code(), Some(2), "{service}");
+    }
+    let actor = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "actor",
+            "--learner",
+            "http://127.0.0.1:9",
+            "--env",
+            "gridworld",
+            "--seed",
+            "1",
+        ])
+        .output()
+        .expect("jsae actor runs");
+    assert_eq!(actor.status.code(), Some(2), "jsae needs --embedder");
+    let reason = String::from_utf8_lossy(&actor.stderr);
+    assert!(reason.contains("--embedder"), "{reason}");
+}
+
+#[test]
+fn services_stop_with_exit_0_on_sigterm() {
+    use std::io::{BufRead, BufReader};
+    use std::process::Stdio;
+    let dir = std::env::temp_dir().join(format!("jsae-cli-term-{}", std::process::id()));
+    let out = dir.to_str().unwrap_or(".").to_string();
+    let common = ["--env", "gridworld", "--algo", "ppo", "--seed", "1"];
+    let learner_args: Vec<&str> = [
+        "learner",
+        "--listen",
+        "127.0.0.1:0",
+        "--env-steps",
+        "100000",
+    ]
+    .into_iter()
+    .chain(common)
+    .chain(["--out", &out])
+    .collect();
+    let embedder_args: Vec<&str> = ["embedder", "--listen", "127.0.0.1:0"]
+        .into_iter()
+        .chain(common)
+        .collect();
+    for args in [learner_args, embedder_args] {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+            .args(&args)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .expect("starts");
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().expect("stdout"))
+            .read_line(&mut line)
+            .expect("reads");
+        assert!(line.contains("listening on 127.0.0.1:"), "{line}");
+        let pid = child.id().to_string();
+        let sent = Command::new("kill").args(["-TERM", &pid]).status();
+        assert!(sent.is_ok_and(|s| s.success()));
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(20);
+        let status = loop {
+            if let Some(s) = child.try_wait().expect("waits") {
+                break s;
+            }
+            assert!(
+                std::time::Instant::now() < deadline,
+                "{args:?} ignored SIGTERM"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        };
+        assert_eq!(status.code(), Some(0), "{args:?}: {status}");
+    }
+}

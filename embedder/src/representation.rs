@@ -1,0 +1,75 @@
+//! The seam between the embedder's trainer and the model it trains. The trainer (replay
+//! buffer, pre-training, continuous updates, versions, checkpoints) is the same for every
+//! representation; what differs (the networks, their losses, their weights' bytes) sits
+//! behind [`RepresentationModel`]. JSAE's phi/g/T/f ([`EmbeddingModel`]) is the one
+//! implementation today; the AE and RA baselines are the next ones. Which questions a
+//! representation answers for the rest of the system (does it embed states? does f decode
+//! actions?) is `jsae_proto::settings::Representation`.
+
+use burn::optim::{GradientsParams, ModuleOptimizer};
+use jsae_nn::RecordError;
+use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+
+use crate::EmbeddingModel;
+use crate::replay::Minibatch;
+
+/// A model the embedder trains from transitions and publishes as snapshots.
+pub trait RepresentationModel: std::fmt::Debug + Send {
+    /// The state space it takes.
+    fn state_space(&self) -> &StateSpace;
+    /// The action space it takes.
+    fn action_space(&self) -> &ActionSpace;
+    /// Updates input statistics (state normalisation) with new states.
+    fn observe_states(&mut self, states: &StateBatch);
+    /// One optimiser step on a minibatch at learning rate `lr`; returns (model loss, decoder
+    /// loss) before the step.
+    fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32);
+    /// (model loss, decoder loss) on a minibatch, without training.
+    fn evaluate(&self, mb: &Minibatch) -> (f32, f32);
+    /// The weights, as inference-side snapshot bytes.
+    fn snapshot_bytes(&self) -> Result<Vec<u8>, RecordError>;
+    /// Loads weights from snapshot bytes.
+    fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError>;
+}
+
+impl RepresentationModel for EmbeddingModel {
+    fn state_space(&self) -> &StateSpace {
+        EmbeddingModel::state_space(self)
+    }
+
+    fn action_space(&self) -> &ActionSpace {
+        EmbeddingModel::action_space(self)
+    }
+
+    fn observe_states(&mut self, states: &StateBatch) {
+        self.update_state_stats(states);
+    }
+
+    /// phi, g and T on `-log P(s'|s,a)` (or MSE), f on detached `g(a)`, one joint step.
+    fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32) {
+        let (model_loss, decoder_loss) = self.losses(&mb.states, &mb.actions, &mb.next_states);
+        let total = model_loss.clone() + decoder_loss.clone();
+        let grads = GradientsParams::from_grads(total.backward(), self.net());
+        let net = optim.step(lr, self.net().clone(), grads);
+        self.set_net(net);
+        (
+            model_loss.into_scalar::<f32>(),
+            decoder_loss.into_scalar::<f32>(),
+        )
+    }
+
+    fn evaluate(&self, mb: &Minibatch) -> (f32, f32) {
+        let valid = self.for_inference(&self.device().clone().inner());
+        let (a, b) = valid.losses(&mb.states, &mb.actions, &mb.next_states);
+        (a.into_scalar::<f32>(), b.into_scalar::<f32>())
+    }
+
+    fn snapshot_bytes(&self) -> Result<Vec<u8>, RecordError> {
+        self.for_inference(&self.device().clone().inner())
+            .to_bytes()
+    }
+
+    fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
+        EmbeddingModel::load_bytes(self, bytes)
+    }
+}

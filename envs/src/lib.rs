@@ -1,0 +1,202 @@
+//! Environments behind one trait, with Gymnasium's step semantics: `terminated` (a terminal
+//! state was reached: value 0 after it) and `truncated` (the time limit cut the episode: the
+//! next state still has a value) are separate.
+//!
+//! Layout: the [`Env`] trait, [`make_env`] and vectorised stepping ([`step_all`]) here;
+//! `gridworld` (continuous and discrete, with `geometry` for its walls), `slotmachine`,
+//! `mujoco` (HalfCheetah and Ant, equal to Gymnasium v5), and `recsys` (the recommender's
+//! sessions, session store, n-gram MDP and environment). Depends on `jsae-proto` only.
+
+// One unsafe call (MuJoCo's global log configuration, mujoco.rs) is allowed locally.
+#![deny(unsafe_code)]
+
+mod geometry;
+pub mod gridworld;
+pub mod mujoco;
+pub mod recsys;
+pub mod slotmachine;
+
+use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use rand_chacha::ChaCha8Rng;
+
+pub use crate::recsys::{RecommenderEnv, RecsysError};
+pub use gridworld::Gridworld;
+pub use jsae_proto::settings::{
+    EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
+};
+pub use mujoco::{MujocoEnv, Robot};
+pub use slotmachine::Slotmachine;
+
+/// An action handed to an environment.
+#[derive(Debug, Clone, Copy)]
+pub enum ActionRef<'a> {
+    /// A discrete action index.
+    Discrete(u32),
+    /// A continuous action (not clipped by the caller).
+    Continuous(&'a [f32]),
+}
+
+/// What one step produced.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct Step {
+    /// The reward.
+    pub reward: f64,
+    /// A terminal state was reached.
+    pub terminated: bool,
+    /// The time limit ended the episode (never together with `terminated`).
+    pub truncated: bool,
+    /// The step reached the goal, for environments with a success notion.
+    pub success: bool,
+}
+
+/// An environment. `reset` must be called before the first `step` and after every step
+/// that terminated or truncated.
+pub trait Env: Send {
+    /// The state space.
+    fn state_space(&self) -> &StateSpace;
+    /// The action space.
+    fn action_space(&self) -> &ActionSpace;
+    /// Whether episodes have a success notion (reported as `eval_success_rate`).
+    fn has_success(&self) -> bool;
+    /// Starts a new episode; any randomness comes from `rng`.
+    fn reset(&mut self, rng: &mut ChaCha8Rng);
+    /// Executes one action.
+    fn step(&mut self, action: ActionRef<'_>) -> Step;
+    /// Appends the current state to `out`.
+    fn push_state(&self, out: &mut StateBatch);
+}
+
+/// Steps `envs[i]` with row `i` of `actions` into `out[i]`, on up to `threads` threads
+/// (contiguous chunks of environments: the first on the calling thread, the others on
+/// scoped threads; 1: all on the calling thread). Environments own
+/// their state, so the result does not depend on `threads`.
+pub fn step_all(
+    envs: &mut [Box<dyn Env>],
+    actions: &ActionBatch,
+    out: &mut [Step],
+    threads: usize,
+) {
+    let step_one = |env: &mut Box<dyn Env>, i: usize| match actions {
+        ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[i])),
+        ActionBatch::Continuous { dim, data } => {
+            env.step(ActionRef::Continuous(&data[i * dim..(i + 1) * dim]))
+        }
+    };
+    let threads = threads.clamp(1, envs.len().max(1));
+    if threads == 1 {
+        for (i, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
+            *o = step_one(env, i);
+        }
+        return;
+    }
+    let chunk = envs.len().div_ceil(threads);
+    let step_chunk = |c: usize, envs: &mut [Box<dyn Env>], out: &mut [Step]| {
+        for (j, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {
+            *o = step_one(env, c * chunk + j);
+        }
+    };
+    std::thread::scope(|scope| {
+        let mut chunks = envs
+            .chunks_mut(chunk)
+            .zip(out.chunks_mut(chunk))
+            .enumerate();
+        // the calling thread steps the first chunk itself: one spawn fewer per step
+        let first = chunks.next();
+        for (c, (envs, out)) in chunks {
+            scope.spawn(move || step_chunk(c, envs, out));
+        }
+        if let Some((c, (envs, out))) = first {
+            step_chunk(c, envs, out);
+        }
+    });
+}
+
+/// Threads for `step_all`: `configured`, or one per core when 0.
+pub fn step_threads(configured: usize) -> usize {
+    match configured {
+        0 => std::thread::available_parallelism().map_or(1, usize::from),
+        n => n,
+    }
+}
+
+/// Builds the named environment (only the recommender can fail: it reads its data).
+pub fn make_env(name: EnvName, config: &EnvConfig) -> Result<Box<dyn Env>, RecsysError> {
+    Ok(match name {
+        EnvName::Gridworld => Box::new(Gridworld::new(config.gridworld.clone(), false)),
+        EnvName::GridworldDiscrete => Box::new(Gridworld::new(config.gridworld.clone(), true)),
+        EnvName::Slotmachine => Box::new(Slotmachine::new(config.slotmachine.clone())),
+        EnvName::HalfCheetah => Box::new(MujocoEnv::new(Robot::HalfCheetah, &config.mujoco)),
+        EnvName::Ant => Box::new(MujocoEnv::new(Robot::Ant, &config.mujoco)),
+        EnvName::Recommender => Box::new(RecommenderEnv::new(config)?),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_settings_give_the_spaces_the_environments_have() {
+        let mut config = EnvConfig::default();
+        config.gridworld.actuators = 5;
+        config.gridworld.bins = 7;
+        config.slotmachine.bins = 3;
+        config.recommender.source = jsae_proto::settings::SessionSource::Synthetic;
+        config.recommender.top_n = 50;
+        config.recommender.history = 3;
+        for factored in [false, true] {
+            config.slotmachine.factored = factored;
+            for name in [
+                EnvName::Gridworld,
+                EnvName::GridworldDiscrete,
+                EnvName::Slotmachine,
+                EnvName::HalfCheetah,
+                EnvName::Ant,
+                EnvName::Recommender,
+            ] {
+                let env = make_env(name, &config).expect("builds");
+                let (states, actions) = name.spaces(&config);
+                assert_eq!(
+                    (&states, &actions),
+                    (env.state_space(), env.action_space()),
+                    "{}",
+                    name.as_str()
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn stepping_on_threads_gives_what_one_thread_gives() {
+        use rand::{Rng, SeedableRng};
+        let config = EnvConfig::default();
+        let run = |threads: usize| {
+            let mut rng = ChaCha8Rng::seed_from_u64(7);
+            let mut envs: Vec<Box<dyn Env>> = (0..5)
+                .map(|_| make_env(EnvName::HalfCheetah, &config).expect("builds"))
+                .collect();
+            for env in &mut envs {
+                env.reset(&mut rng);
+            }
+            let mut steps = vec![Step::default(); envs.len()];
+            let mut seen = Vec::new();
+            for _ in 0..20 {
+                let data = (0..envs.len() * 6)
+                    .map(|_| rng.random_range(-1.5f32..1.5))
+                    .collect();
+                let actions = ActionBatch::Continuous { dim: 6, data };
+                step_all(&mut envs, &actions, &mut steps, threads);
+                let mut states = StateBatch::empty(envs[0].state_space());
+                for env in &envs {
+                    env.push_state(&mut states);
+                }
+                seen.push((steps.clone(), states));
+            }
+            seen
+        };
+        let one = run(1);
+        for threads in [2, 3, 8] {
+            assert!(run(threads) == one, "{threads} threads differ from one");
+        }
+    }
+}

@@ -1,0 +1,208 @@
+//! Run metrics as named scalars: whoever measures something hands a row of `(name, value)`
+//! pairs to a [`MetricsSink`], which decides how to keep them. [`CsvMetrics`] writes
+//! `metrics.csv` (one row per update, flushed as it is written so a crash loses nothing
+//! already reported); [`MetricsTable`] reads it back by column name.
+
+use std::fs::File;
+use std::io;
+use std::path::{Path, PathBuf};
+
+use crate::UpdateMetrics;
+
+/// One named value; `None` is an empty cell (no episode ended, no embedding yet).
+pub type Scalar = (&'static str, Option<f64>);
+
+/// Where rows of named scalars go.
+pub trait MetricsSink: Send {
+    /// Keeps one row. Every row of a sink names the same scalars in the same order.
+    fn record(&mut self, row: &[Scalar]) -> io::Result<()>;
+}
+
+/// The scalars of one learner update: what `metrics.csv` holds per row.
+/// `embedding_loss` is the latest embedding model loss (JSAE).
+pub fn update_scalars(
+    m: &UpdateMetrics,
+    wall_seconds: f64,
+    embedding_loss: Option<f32>,
+) -> Vec<Scalar> {
+    let n = |v: u64| Some(v as f64);
+    vec![
+        ("update", n(m.update)),
+        ("env_steps", n(m.env_steps)),
+        (
+            "wall_seconds",
+            Some((wall_seconds * 1000.0).round() / 1000.0),
+        ),
+        ("return_mean", m.return_mean),
+        ("success_rate", m.success_rate),
+        ("episodes", n(m.episodes as u64)),
+        ("policy_lag_mean", Some(m.policy_lag_mean)),
+        ("policy_lag_max", n(m.policy_lag_max)),
+        ("dropped_lag", n(m.dropped_lag)),
+        ("dropped_embedding", n(m.dropped_embedding)),
+        ("policy_loss", Some(m.policy_loss)),
+        ("value_loss", Some(m.value_loss)),
+        ("entropy", Some(m.entropy)),
+        ("approx_kl", Some(m.approx_kl)),
+        ("clip_frac", Some(m.clip_frac)),
+        ("grad_norm", Some(m.grad_norm)),
+        ("explained_variance", Some(m.explained_variance)),
+        ("lr", Some(m.lr)),
+        ("epochs", n(m.epochs as u64)),
+        ("log_std_mean", Some(m.log_std_mean)),
+        ("policy_version", n(m.policy_version)),
+        ("embedding_version", n(m.embedding_version)),
+        ("embedding_loss", embedding_loss.map(f64::from)),
+    ]
+}
+
+/// `metrics.csv`: a header of the scalars' names, then one row per record.
+#[derive(Debug)]
+pub struct CsvMetrics {
+    writer: csv::Writer<File>,
+    path: PathBuf,
+    header_written: bool,
+}
+
+impl CsvMetrics {
+    /// Creates (or empties) the file; the header is written with the first row.
+    pub fn create(path: &Path) -> io::Result<Self> {
+        Ok(Self {
+            writer: csv::Writer::from_writer(File::create(path)?),
+            path: path.to_path_buf(),
+            header_written: false,
+        })
+    }
+
+    /// Opens the file to add rows (a resumed learner), or creates it.
+    pub fn append(path: &Path) -> io::Result<Self> {
+        let has_rows = std::fs::metadata(path).is_ok_and(|m| m.len() > 0);
+        if !has_rows {
+            return Self::create(path);
+        }
+        let file = std::fs::OpenOptions::new().append(true).open(path)?;
+        Ok(Self {
+            writer: csv::Writer::from_writer(file),
+            path: path.to_path_buf(),
+            header_written: true,
+        })
+    }
+
+    /// The file's path.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+}
+
+impl MetricsSink for CsvMetrics {
+    fn record(&mut self, row: &[Scalar]) -> io::Result<()> {
+        if !self.header_written {
+            self.writer.write_record(row.iter().map(|(name, _)| name))?;
+            self.header_written = true;
+        }
+        self.writer.write_record(
+            row.iter()
+                .map(|(_, v)| v.map(|x| x.to_string()).unwrap_or_default()),
+        )?;
+        self.writer.flush()
+    }
+}
+
+/// Why a metrics file could not be read.
+#[derive(Debug, thiserror::Error)]
+#[error("{path}: {source}")]
+pub struct MetricsReadError {
+    path: PathBuf,
+    source: csv::Error,
+}
+
+/// A metrics file read back: its column names and its rows (empty cells are `None`; a cell
+/// that is no number too).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct MetricsTable {
+    columns: Vec<String>,
+    rows: Vec<Vec<Option<f64>>>,
+}
+
+impl MetricsTable {
+    /// Reads a `metrics.csv`.
+    pub fn read(path: &Path) -> Result<Self, MetricsReadError> {
+        let error = |source| MetricsReadError {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut reader = csv::Reader::from_path(path).map_err(error)?;
+        Self::from_reader(&mut reader).map_err(error)
+    }
+
+    /// Parses the text of a `metrics.csv`.
+    pub fn parse(text: &str) -> Result<Self, csv::Error> {
+        Self::from_reader(&mut csv::Reader::from_reader(text.as_bytes()))
+    }
+
+    fn from_reader<R: io::Read>(reader: &mut csv::Reader<R>) -> Result<Self, csv::Error> {
+        let columns = reader.headers()?.iter().map(str::to_owned).collect();
+        let rows = reader
+            .records()
+            .map(|r| Ok(r?.iter().map(|c| c.parse().ok()).collect()))
+            .collect::<Result<_, csv::Error>>()?;
+        Ok(Self { columns, rows })
+    }
+
+    /// The column names.
+    pub fn columns(&self) -> &[String] {
+        &self.columns
+    }
+
+    /// Number of rows.
+    pub fn len(&self) -> usize {
+        self.rows.len()
+    }
+
+    /// Whether there is no row.
+    pub fn is_empty(&self) -> bool {
+        self.rows.is_empty()
+    }
+
+    /// The values of column `name`, one per row (`None` for an empty cell; all `None` for a
+    /// column the file does not have).
+    pub fn column(&self, name: &str) -> Vec<Option<f64>> {
+        let index = self.columns.iter().position(|c| c == name);
+        self.rows
+            .iter()
+            .map(|row| index.and_then(|i| row.get(i).copied().flatten()))
+            .collect()
+    }
+
+    /// `(x, y)` pairs of two columns, for the rows where both are set.
+    pub fn series(&self, x: &str, y: &str) -> Vec<(f64, f64)> {
+        self.column(x)
+            .into_iter()
+            .zip(self.column(y))
+            .filter_map(|(a, b)| Some((a?, b?)))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rows_written_by_name_read_back_by_name() {
+        let path = std::env::temp_dir().join(format!("jsae-metrics-{}.csv", std::process::id()));
+        let mut sink = CsvMetrics::create(&path).expect("create");
+        sink.record(&[("env_steps", Some(2048.0)), ("return_mean", None)])
+            .expect("row");
+        drop(sink);
+        let mut sink = CsvMetrics::append(&path).expect("append");
+        sink.record(&[("env_steps", Some(4096.0)), ("return_mean", Some(-0.25))])
+            .expect("row");
+        let table = MetricsTable::read(&path).expect("read");
+        assert_eq!(table.columns(), ["env_steps", "return_mean"]);
+        assert_eq!(table.column("return_mean"), [None, Some(-0.25)]);
+        assert_eq!(table.series("env_steps", "return_mean"), [(4096.0, -0.25)]);
+        assert_eq!(table.column("missing"), [None, None]);
+        let _ = std::fs::remove_file(path);
+    }
+}

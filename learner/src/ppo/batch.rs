@@ -1,0 +1,170 @@
+//! A complete batch of fragments flattened for minibatching: advantages by GAE (terminated
+//! and truncated kept apart), returns, old values and log-probabilities; and the tensors of
+//! one minibatch.
+
+use burn::tensor::{Device, Tensor};
+use jsae_nn as nn;
+use jsae_proto::{ActionBatch, RolloutFragment};
+
+use crate::PpoConfig;
+use crate::gae::{GaeStep, gae};
+use crate::normalise::RewardScaler;
+use crate::policy::Policy;
+
+/// A batch flattened for minibatching: `[n]` rows of x, actions, old log-probs, advantages,
+/// returns and old values.
+pub(super) struct Batch {
+    pub(super) x_dim: usize,
+    pub(super) x: Vec<f32>,
+    pub(super) actions: ActionBatch,
+    pub(super) logp: Vec<f32>,
+    pub(super) adv: Vec<f32>,
+    pub(super) returns: Vec<f32>,
+    pub(super) values: Vec<f32>,
+}
+
+pub(super) struct Minibatch {
+    pub(super) x: Tensor<2>,
+    pub(super) actions: ActionBatch,
+    pub(super) old_logp: Tensor<1>,
+    pub(super) adv: Tensor<1>,
+    pub(super) returns: Tensor<1>,
+    pub(super) old_values: Tensor<1>,
+}
+
+impl Batch {
+    pub(super) fn build(
+        policy: &Policy,
+        fragments: Vec<RolloutFragment>,
+        config: &PpoConfig,
+        mut scaler: Option<&mut RewardScaler>,
+    ) -> Self {
+        let x_dim = policy.input_dim();
+        // One critic pass over every x, truncation bootstrap x and tail x.
+        let mut all_x = Vec::new();
+        for f in &fragments {
+            all_x.extend_from_slice(&f.x);
+            all_x.extend_from_slice(&f.truncated_next_x);
+            all_x.extend_from_slice(&f.last_next_x);
+        }
+        let rows = all_x.len() / x_dim.max(1);
+        let critic = policy.for_inference(&policy.device().clone().inner());
+        let values = nn::to_vec(critic.value(nn::tensor2(all_x, rows, x_dim, critic.device())));
+
+        let mut out = Batch {
+            x_dim,
+            x: Vec::new(),
+            actions: match &fragments.first().map(|f| &f.actions) {
+                Some(ActionBatch::Continuous { dim, .. }) => ActionBatch::Continuous {
+                    dim: *dim,
+                    data: Vec::new(),
+                },
+                _ => ActionBatch::Discrete(Vec::new()),
+            },
+            logp: Vec::new(),
+            adv: Vec::new(),
+            returns: Vec::new(),
+            values: Vec::new(),
+        };
+        let mut offset = 0;
+        for mut f in fragments {
+            let t_len = f.len();
+            let cuts = f.truncated.iter().filter(|&&t| t).count();
+            let v = &values[offset..offset + t_len];
+            let cut_v = &values[offset + t_len..offset + t_len + cuts];
+            let tail_v = values[offset + t_len + cuts];
+            offset += t_len + cuts + 1;
+            let ends: Vec<bool> = f
+                .terminated
+                .iter()
+                .zip(&f.truncated)
+                .map(|(a, b)| *a || *b)
+                .collect();
+            if let Some(s) = scaler.as_deref_mut() {
+                s.scale((f.actor_id, f.env_index), &mut f.rewards, &ends);
+            }
+            let mut cut = 0;
+            let steps: Vec<GaeStep> = (0..t_len)
+                .map(|t| {
+                    let next_value = if f.truncated[t] {
+                        cut += 1;
+                        cut_v[cut - 1]
+                    } else if t + 1 < t_len {
+                        v[t + 1]
+                    } else {
+                        tail_v
+                    };
+                    GaeStep {
+                        reward: f.rewards[t],
+                        value: v[t],
+                        next_value,
+                        terminated: f.terminated[t],
+                        episode_end: ends[t],
+                    }
+                })
+                .collect();
+            let (adv, ret) = gae(&steps, config.gamma as f32, config.gae_lambda as f32);
+            out.x.extend_from_slice(&f.x);
+            out.actions.extend_from(&f.actions);
+            out.logp.extend_from_slice(&f.logp);
+            out.adv.extend(adv);
+            out.returns.extend(ret);
+            out.values.extend_from_slice(v);
+        }
+        out
+    }
+
+    pub(super) fn len(&self) -> usize {
+        self.logp.len()
+    }
+
+    pub(super) fn explained_variance(&self) -> f64 {
+        let n = self.returns.len().max(1) as f64;
+        let mean = |v: &[f32]| v.iter().map(|&a| f64::from(a)).sum::<f64>() / n;
+        let var =
+            |v: &[f32], m: f64| v.iter().map(|&a| (f64::from(a) - m).powi(2)).sum::<f64>() / n;
+        let diff: Vec<f32> = self
+            .returns
+            .iter()
+            .zip(&self.values)
+            .map(|(r, v)| r - v)
+            .collect();
+        let var_ret = var(&self.returns, mean(&self.returns));
+        if var_ret <= 0.0 {
+            return 0.0;
+        }
+        1.0 - var(&diff, mean(&diff)) / var_ret
+    }
+
+    pub(super) fn minibatch(&self, rows: &[usize], norm_adv: bool, device: &Device) -> Minibatch {
+        let d = self.x_dim;
+        let mut x = Vec::with_capacity(rows.len() * d);
+        let mut actions = match &self.actions {
+            ActionBatch::Discrete(_) => ActionBatch::Discrete(Vec::with_capacity(rows.len())),
+            ActionBatch::Continuous { dim, .. } => ActionBatch::Continuous {
+                dim: *dim,
+                data: Vec::with_capacity(rows.len() * dim),
+            },
+        };
+        let pick = |v: &[f32]| rows.iter().map(|&r| v[r]).collect::<Vec<f32>>();
+        for &r in rows {
+            x.extend_from_slice(&self.x[r * d..(r + 1) * d]);
+            actions.push_row_of(&self.actions, r);
+        }
+        let mut adv = pick(&self.adv);
+        if norm_adv && adv.len() > 1 {
+            let n = adv.len() as f32;
+            let mean = adv.iter().sum::<f32>() / n;
+            let std = (adv.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / (n - 1.0)).sqrt();
+            adv.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
+        }
+        Minibatch {
+            x: nn::tensor2(x, rows.len(), d, device),
+            actions,
+            old_logp: nn::tensor1(pick(&self.logp), device),
+            adv: nn::tensor1(adv, device),
+            returns: nn::tensor1(pick(&self.returns), device),
+            old_values: nn::tensor1(pick(&self.values), device),
+        }
+    }
+}

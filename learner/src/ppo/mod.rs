@@ -1,0 +1,306 @@
+//! The PPO learner: ingests rollout fragments, updates the policy and critic once a batch
+//! is complete, and publishes versioned policy snapshots.
+//!
+//! Staleness rules: a fragment whose policy version is more than `max_policy_lag` behind is
+//! dropped (and counted). Fragments carry the embedding version that computed their `x`;
+//! when a newer embedding version arrives, buffered fragments of older versions are
+//! dropped (their `x` live in the old state-embedding space, which the critic and the new
+//! fragments no longer share) and fragments of older versions that arrive later are dropped
+//! too. Every drop is counted in the metrics.
+//!
+//! Layout: the learner and its buffer with the staleness rules (here), `batch` (fragments to
+//! a flat batch with GAE, and minibatches), `update` (the PPO update), `report` (what
+//! ingesting and updating report).
+
+mod batch;
+mod report;
+mod update;
+
+use std::collections::HashMap;
+
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::Device;
+use jsae_nn::{BurnDevice, DeviceKind, RecordError};
+use jsae_proto::{EpisodeStat, PolicySnapshot, RolloutFragment};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::PpoConfig;
+use crate::normalise::RewardScaler;
+use crate::policy::{Policy, PolicyHead};
+use batch::Batch;
+pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
+pub use update::clipped_surrogate_loss;
+
+struct Adam(ModuleOptimizer);
+
+impl std::fmt::Debug for Adam {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Adam")
+    }
+}
+
+/// The PPO learner's whole state.
+#[derive(Debug)]
+pub struct Learner {
+    config: PpoConfig,
+    policy: Policy,
+    inference_device: Device,
+    optim: Adam,
+    rng: ChaCha8Rng,
+    version: u64,
+    total_env_steps: u64,
+    actor_steps: HashMap<u64, u64>,
+    embedding_version: u64,
+    pending: Vec<RolloutFragment>,
+    pending_steps: usize,
+    batch_lag: LagStats,
+    run_lag: LagStats,
+    dropped_lag: u64,
+    dropped_embedding: u64,
+    episodes: Vec<EpisodeStat>,
+    reward_scaler: Option<RewardScaler>,
+    updates: u64,
+}
+
+impl Learner {
+    /// A learner for policy inputs of width `input` and the given head; `total_env_steps`
+    /// is the run's budget (for learning-rate annealing).
+    pub fn new(
+        config: PpoConfig,
+        input: usize,
+        head: PolicyHead,
+        total_env_steps: u64,
+        seed: u64,
+        device: DeviceKind,
+    ) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6c65_6172_6e65_7200);
+        let policy = Policy::new(&config, input, head, &mut rng, &device.train_device());
+        let optim = AdamConfig::new().with_epsilon(1e-5).init();
+        let reward_scaler = config
+            .reward_scaling
+            .then(|| RewardScaler::new(config.gamma, 10.0));
+        Self {
+            config,
+            policy,
+            inference_device: device.device(),
+            optim: Adam(optim),
+            rng,
+            version: 0,
+            total_env_steps,
+            actor_steps: HashMap::new(),
+            embedding_version: 0,
+            pending: Vec::new(),
+            pending_steps: 0,
+            batch_lag: LagStats::default(),
+            run_lag: LagStats::default(),
+            dropped_lag: 0,
+            dropped_embedding: 0,
+            episodes: Vec::new(),
+            reward_scaler,
+            updates: 0,
+        }
+    }
+
+    /// The learner of a run: its policy shape from the environment's spaces and the
+    /// algorithm, one batch = one rollout round of all actors.
+    pub fn for_run(config: &jsae_proto::settings::TrainConfig) -> Self {
+        let (states, actions) = config.spaces();
+        let (input, head) = crate::policy_shape(config, &states, &actions);
+        let mut ppo = config.ppo.clone();
+        ppo.batch_steps = config.round_steps();
+        Self::new(
+            ppo,
+            input,
+            head,
+            config.env_steps,
+            config.seed,
+            config.device,
+        )
+    }
+
+    /// The run's summary, from the evaluation report and this learner's counters.
+    pub fn summary(
+        &self,
+        config: &jsae_proto::settings::TrainConfig,
+        env_steps: u64,
+        wall_seconds: f64,
+        eval: &jsae_proto::EvalReport,
+    ) -> crate::Summary {
+        let meta = crate::RunMeta {
+            env: config.env.as_str().into(),
+            algo: config.algo.as_str().into(),
+            seed: config.seed,
+            device: config.device.as_str().into(),
+        };
+        crate::Summary::new(
+            &meta,
+            env_steps,
+            wall_seconds,
+            eval,
+            self.updates(),
+            self.lag(),
+            self.dropped(),
+            self.version(),
+        )
+    }
+
+    /// Current policy version (0: initial weights).
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Env steps of all actors so far.
+    pub fn env_steps(&self) -> u64 {
+        self.actor_steps.values().sum()
+    }
+
+    /// Lag statistics over the run.
+    pub fn lag(&self) -> &LagStats {
+        &self.run_lag
+    }
+
+    /// Updates done.
+    pub fn updates(&self) -> u64 {
+        self.updates
+    }
+
+    /// Fragments dropped for lag and for an outdated embedding.
+    pub fn dropped(&self) -> (u64, u64) {
+        (self.dropped_lag, self.dropped_embedding)
+    }
+
+    /// The policy (training device).
+    pub fn policy(&self) -> &Policy {
+        &self.policy
+    }
+
+    /// The space fragments' actions must be in.
+    pub fn head(&self) -> PolicyHead {
+        self.policy.head()
+    }
+
+    /// The current policy as a snapshot.
+    pub fn snapshot(&self) -> Result<PolicySnapshot, RecordError> {
+        Ok(PolicySnapshot {
+            version: self.version,
+            bytes: self
+                .policy
+                .for_inference(&self.inference_device)
+                .to_bytes()?,
+        })
+    }
+
+    /// Continues from a saved policy (a restarted learner): loads the weights and takes its
+    /// version, so actors' versions stay meaningful, and its update count (one version per
+    /// update), so metrics.csv goes on numbering. The optimiser state starts afresh.
+    pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
+        self.policy.load_bytes(&snapshot.bytes)?;
+        self.version = snapshot.version;
+        self.updates = self.updates.max(snapshot.version);
+        Ok(())
+    }
+
+    /// Records an actor's step count (also carried by fragments).
+    pub fn observe_actor_steps(&mut self, actor_id: u64, steps: u64) {
+        let e = self.actor_steps.entry(actor_id).or_insert(0);
+        *e = (*e).max(steps);
+    }
+
+    /// Validates a fragment and buffers it; runs an update when the batch is complete.
+    pub fn ingest(&mut self, fragment: RolloutFragment) -> Result<Ingested, LearnerError> {
+        fragment.validate(self.policy.input_dim(), &self.policy.head().action_space())?;
+        self.observe_actor_steps(fragment.actor_id, fragment.actor_env_steps);
+        self.episodes.extend_from_slice(&fragment.episodes);
+        let lag = self.version.saturating_sub(fragment.policy_version);
+        if lag > self.config.max_policy_lag {
+            self.dropped_lag += 1;
+            return Ok(Ingested::DroppedLag);
+        }
+        if fragment.embedding_version < self.embedding_version {
+            self.dropped_embedding += 1;
+            return Ok(Ingested::DroppedEmbedding);
+        }
+        if fragment.embedding_version > self.embedding_version {
+            self.embedding_version = fragment.embedding_version;
+            self.dropped_embedding += self.pending.len() as u64;
+            self.pending.clear();
+            self.pending_steps = 0;
+            self.batch_lag = LagStats::default();
+        }
+        for stats in [&mut self.batch_lag, &mut self.run_lag] {
+            stats.sum += lag;
+            stats.count += 1;
+            stats.max = stats.max.max(lag);
+        }
+        self.pending_steps += fragment.len();
+        self.pending.push(fragment);
+        if self.pending_steps < self.config.batch_steps {
+            return Ok(Ingested::Buffered);
+        }
+        let report = self.update()?;
+        Ok(Ingested::Updated(Box::new(report)))
+    }
+
+    fn learning_rate(&self) -> f64 {
+        if !self.config.anneal_lr || self.total_env_steps == 0 {
+            return self.config.lr;
+        }
+        let done = self.env_steps().saturating_sub(self.pending_steps as u64) as f64;
+        let frac = (1.0 - done / self.total_env_steps as f64).clamp(0.0, 1.0);
+        self.config.lr * frac.max(1e-3)
+    }
+
+    fn update(&mut self) -> Result<UpdateReport, LearnerError> {
+        let fragments = std::mem::take(&mut self.pending);
+        let batch_steps = self.pending_steps;
+        self.pending_steps = 0;
+        let lr = self.learning_rate();
+        let batch = Batch::build(
+            &self.policy,
+            fragments,
+            &self.config,
+            self.reward_scaler.as_mut(),
+        );
+        let metrics = self.optimise(&batch, lr);
+        // After the update: the actors' next rollouts use these statistics with these weights.
+        self.policy.update_obs_stats(&batch.x);
+        self.version += 1;
+        self.updates += 1;
+        let episodes = std::mem::take(&mut self.episodes);
+        let lag = std::mem::take(&mut self.batch_lag);
+        let (return_mean, success_rate) = episode_means(&episodes);
+        let metrics = UpdateMetrics {
+            update: self.updates,
+            env_steps: self.env_steps(),
+            batch_steps,
+            return_mean,
+            success_rate,
+            episodes: episodes.len(),
+            policy_lag_mean: lag.mean(),
+            policy_lag_max: lag.max,
+            dropped_lag: self.dropped_lag,
+            dropped_embedding: self.dropped_embedding,
+            lr,
+            embedding_version: self.embedding_version,
+            policy_version: self.version,
+            ..metrics
+        };
+        Ok(UpdateReport {
+            metrics,
+            snapshot: self.snapshot()?,
+        })
+    }
+}
+
+fn episode_means(episodes: &[EpisodeStat]) -> (Option<f64>, Option<f64>) {
+    if episodes.is_empty() {
+        return (None, None);
+    }
+    let n = episodes.len() as f64;
+    let ret = episodes.iter().map(|e| e.ret).sum::<f64>() / n;
+    let successes: Vec<bool> = episodes.iter().filter_map(|e| e.success).collect();
+    let success = (!successes.is_empty())
+        .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
+    (Some(ret), success)
+}

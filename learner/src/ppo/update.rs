@@ -1,0 +1,165 @@
+//! One PPO update over a complete batch: epochs of shuffled minibatches, the clipped
+//! surrogate, the (optionally clipped) value loss and the entropy bonus, global grad-norm
+//! clipping, Adam, and the KL early stop; with the statistics each epoch reports.
+
+use burn::optim::GradientsParams;
+use burn::tensor::Tensor;
+use jsae_nn as nn;
+use rand::seq::SliceRandom;
+
+use super::batch::Batch;
+use super::{Learner, UpdateMetrics};
+use crate::policy::PolicyHead;
+
+impl Learner {
+    pub(super) fn optimise(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
+        let n = batch.len();
+        let device = self.policy.device().clone();
+        let mut order: Vec<usize> = (0..n).collect();
+        let mb = self.config.minibatch_size.min(n).max(1);
+        let clip = self.config.clip as f32;
+        let (mut grad_sum, mut grad_count) = (0.0, 0);
+        let mut last = EpochStats::default();
+        let mut epochs = 0;
+        for _ in 0..self.config.epochs {
+            order.shuffle(&mut self.rng);
+            let mut stats = EpochStats::default();
+            for rows in order.chunks(mb) {
+                let m = batch.minibatch(rows, self.config.norm_adv, &device);
+                let eval = self.policy.evaluate(m.x, &m.actions);
+                let log_ratio = eval.logp - m.old_logp;
+                let pg_loss = clipped_surrogate_loss(log_ratio.clone(), m.adv, clip);
+                let v_loss = if self.config.clip_value_loss {
+                    let unclipped = (eval.value.clone() - m.returns.clone()).square();
+                    let clipped_v =
+                        m.old_values.clone() + (eval.value - m.old_values).clamp(-clip, clip);
+                    let clipped = (clipped_v - m.returns).square();
+                    unclipped.max_pair(clipped).mean().mul_scalar(0.5)
+                } else {
+                    (eval.value - m.returns).square().mean().mul_scalar(0.5)
+                };
+                let entropy = eval.entropy.mean();
+                let loss = pg_loss.clone()
+                    - entropy.clone().mul_scalar(self.config.ent_coef as f32)
+                    + v_loss.clone().mul_scalar(self.config.vf_coef as f32);
+                let mut grads = GradientsParams::from_grads(loss.backward(), self.policy.net());
+                let norm = nn::clip_global_grad_norm(
+                    self.policy.net(),
+                    &mut grads,
+                    self.config.max_grad_norm,
+                );
+                grad_sum += f64::from(norm);
+                grad_count += 1;
+                let net = self.optim.0.step(lr, self.policy.net().clone(), grads);
+                self.policy.set_net(net);
+                let lr_host = nn::to_vec(log_ratio.detach());
+                stats.add(
+                    &lr_host,
+                    clip,
+                    pg_loss.into_scalar::<f32>(),
+                    v_loss.into_scalar::<f32>(),
+                    entropy.into_scalar::<f32>(),
+                );
+            }
+            epochs += 1;
+            last = stats;
+            if self
+                .config
+                .target_kl
+                .is_some_and(|target| last.approx_kl() > target)
+            {
+                break;
+            }
+        }
+        let log_std = match self.policy.head() {
+            PolicyHead::Gaussian { .. } => {
+                let v = self.policy.log_std_values();
+                f64::from(v.iter().sum::<f32>()) / v.len().max(1) as f64
+            }
+            PolicyHead::Categorical { .. } => 0.0,
+        };
+        UpdateMetrics {
+            policy_loss: last.mean(last.pg),
+            value_loss: last.mean(last.v),
+            entropy: last.mean(last.ent),
+            approx_kl: last.approx_kl(),
+            clip_frac: last.clip_frac(),
+            grad_norm: grad_sum / f64::from(grad_count.max(1)),
+            epochs,
+            log_std_mean: log_std,
+            explained_variance: batch.explained_variance(),
+            ..UpdateMetrics::default()
+        }
+    }
+}
+
+/// PPO's clipped surrogate: `mean(max(-A r, -A clip(r, 1-c, 1+c)))` with
+/// `r = exp(log_ratio)`, all `[batch]`.
+pub fn clipped_surrogate_loss(log_ratio: Tensor<1>, adv: Tensor<1>, clip: f32) -> Tensor<1> {
+    let ratio = log_ratio.exp();
+    let unclipped = ratio.clone() * adv.clone().neg();
+    let clipped = ratio.clamp(1.0 - clip, 1.0 + clip) * adv.neg();
+    unclipped.max_pair(clipped).mean()
+}
+
+#[derive(Debug, Default)]
+struct EpochStats {
+    pg: f64,
+    v: f64,
+    ent: f64,
+    kl: f64,
+    clipped: f64,
+    samples: f64,
+    minibatches: f64,
+}
+
+impl EpochStats {
+    fn add(&mut self, log_ratio: &[f32], clip: f32, pg: f32, v: f32, ent: f32) {
+        for &lr in log_ratio {
+            let r = lr.exp();
+            self.kl += f64::from((r - 1.0) - lr);
+            if (r - 1.0).abs() > clip {
+                self.clipped += 1.0;
+            }
+        }
+        self.samples += log_ratio.len() as f64;
+        self.pg += f64::from(pg);
+        self.v += f64::from(v);
+        self.ent += f64::from(ent);
+        self.minibatches += 1.0;
+    }
+
+    fn mean(&self, sum: f64) -> f64 {
+        sum / self.minibatches.max(1.0)
+    }
+
+    fn approx_kl(&self) -> f64 {
+        self.kl / self.samples.max(1.0)
+    }
+
+    fn clip_frac(&self) -> f64 {
+        self.clipped / self.samples.max(1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jsae_nn::{BurnDevice, DeviceKind};
+
+    #[test]
+    fn clipped_surrogate_matches_hand_computed_values() {
+        let device = DeviceKind::Flex.device();
+        // ratios 1.5, 0.5, 1.1, 0.7 with advantages 1, 1, -2, -1 and clip 0.2:
+        //  1.5, A=1:  max(-1.5, -1.2) = -1.2
+        //  0.5, A=1:  max(-0.5, -0.8) = -0.5
+        //  1.1, A=-2: max(2.2, 2.2)   =  2.2
+        //  0.7, A=-1: max(0.7, 0.8)   =  0.8
+        // mean = (-1.2 - 0.5 + 2.2 + 0.8) / 4 = 0.325
+        let ratios: [f32; 4] = [1.5, 0.5, 1.1, 0.7];
+        let log_ratio = nn::tensor1(ratios.iter().map(|r| r.ln()).collect(), &device);
+        let adv = nn::tensor1(vec![1.0, 1.0, -2.0, -1.0], &device);
+        let loss = clipped_surrogate_loss(log_ratio, adv, 0.2).into_scalar::<f32>();
+        assert!((loss - 0.325).abs() < 1e-5, "{loss}");
+    }
+}

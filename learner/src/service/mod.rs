@@ -1,0 +1,211 @@
+//! The learner as a gRPC service (`jsae.v1.Learner`).
+//!
+//! `PushFragments` validates each fragment (dimensions, finite values, a policy version this
+//! learner has published) and queues it; one thread owns the [`Learner`]: PPO updates, the
+//! run directory (metrics.csv per update, the latest policy checkpoint before each snapshot
+//! is published, summary.json at the end) and the end of the run: at `env_steps` it asks the
+//! actors for deterministic evaluation episodes on the policy stream, writes the summary on
+//! the first report, tells the actors to finish, and returns.
+//!
+//! Embedding versions: a fragment computed under an older embedding than the newest one seen
+//! is dropped, and the first fragment of a newer embedding drops the partial batch gathered
+//! under the old one (its `x` and `e` mean something else now); both count as
+//! `dropped_embedding`. A restarted learner resumes from `checkpoints/policy-latest.bpk` with
+//! its version, so actors that kept running stay valid.
+
+mod grpc;
+mod training;
+
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::sync::atomic::AtomicU64;
+use std::time::{Duration, Instant};
+
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
+use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
+use jsae_proto::{client, net};
+use tokio::net::TcpListener;
+use tokio::sync::{mpsc, watch};
+
+use crate::{CsvMetrics, Learner, Summary};
+use grpc::{Input, PolicyState};
+pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
+
+/// Messages queued between the service and the learner thread.
+const QUEUE: usize = 256;
+use training::LearnerLoop;
+pub use training::latest_checkpoint;
+
+/// Where the learner writes its run directory.
+#[derive(Debug, Clone)]
+pub struct LearnerOptions {
+    /// The run directory (metrics.csv, summary.json, checkpoints/).
+    pub out: PathBuf,
+    /// The embedder to follow (JSAE): embedding versions and losses for the metrics and the
+    /// final embedding checkpoint.
+    pub embedder: Option<String>,
+}
+
+/// Serves the learner on `listener` until the run ends (the summary is written and the
+/// actors are told) or `shutdown` resolves.
+pub async fn serve(
+    config: TrainConfig,
+    listener: TcpListener,
+    options: LearnerOptions,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> anyhow::Result<Option<Summary>> {
+    let out = RunDir::new(&options.out);
+    std::fs::create_dir_all(out.checkpoints().path())?;
+    let mut learner = Learner::for_run(&config);
+    let resumed = match latest_checkpoint(&out) {
+        Some(s) => {
+            learner.restore(&s)?;
+            tracing::info!("resuming from the policy checkpoint, version {}", s.version);
+            true
+        }
+        None => false,
+    };
+    let metrics = if resumed {
+        CsvMetrics::append(&out.metrics_csv())?
+    } else {
+        std::fs::write(out.config_toml(), config.to_toml())?;
+        CsvMetrics::create(&out.metrics_csv())?
+    };
+    let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
+    let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let version = Arc::new(AtomicU64::new(learner.version()));
+    let service = LearnerService {
+        x_dim: learner.policy().input_dim(),
+        actions: learner.head().action_space(),
+        version: version.clone(),
+        queue: queue_tx.clone(),
+        state: publish_rx.clone(),
+        stopping: stop_rx.clone(),
+    };
+    if let Some(url) = options.embedder.clone() {
+        let queue = queue_tx.clone();
+        let stop = net::stopped(&stop_rx);
+        tokio::spawn(async move {
+            let follow = client::watch_embedding(&url, |s| {
+                let queue = queue.clone();
+                async move { queue.send(Input::Embedding(s)).await.is_ok() }
+            });
+            tokio::select! {
+                () = follow => {}
+                () = stop => {}
+            }
+        });
+    }
+    drop(queue_tx);
+    let run = LearnerLoop {
+        config,
+        out,
+        learner,
+        metrics: Box::new(metrics),
+        publish: publish_tx,
+        version,
+        embedding: None,
+        started: Instant::now(),
+    };
+    let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
+    let thread = std::thread::Builder::new()
+        .name("learner-train".into())
+        .spawn(move || {
+            let result = run.run(queue_rx);
+            let _ = done_tx.send(());
+            result
+        })?;
+    let server = pb::learner_server::LearnerServer::new(service)
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+    let finished = publish_rx.clone();
+    let end = async move {
+        tokio::select! {
+            () = shutdown => tracing::info!("learner: shutting down"),
+            _ = done_rx => {
+                if finished.borrow().finished {
+                    // let the actors read the finish event before the streams close
+                    tokio::time::sleep(Duration::from_millis(500)).await;
+                }
+            }
+        }
+        let _ = stop_tx.send(true);
+    };
+    net::serve(server, listener, end).await?;
+    if !thread.is_finished() && !publish_rx.borrow().finished {
+        // interrupted: the thread ends when its queue closes (the service is gone)
+        tracing::info!("learner: interrupted before the end of the run");
+    }
+    match tokio::task::spawn_blocking(move || thread.join()).await? {
+        Ok(Ok(summary)) => Ok(Some(summary)),
+        Ok(Err(_)) if !publish_rx.borrow().finished => Ok(None),
+        Ok(Err(e)) => Err(e),
+        Err(_) => anyhow::bail!("the learner thread panicked"),
+    }
+}
+
+/// The learner's command line (CONTRACT.md).
+#[derive(Debug, Clone, clap::Parser)]
+#[command(
+    name = "jsae-learner",
+    version,
+    about = "JSAE-RL learner: PPO on embedded tuples, publishes policy snapshots, ends the run"
+)]
+pub struct LearnerArgs {
+    /// `--listen`.
+    #[command(flatten)]
+    pub listen: ListenFlag,
+    /// `--embedder`.
+    #[command(flatten)]
+    pub embedder: EmbedderFlag,
+    /// `--env/--algo/--seed/--config`.
+    #[command(flatten)]
+    pub run: RunFlags,
+    /// Env steps of the run, all actors together [default: the settings file's, else the
+    /// environment's: 500000; 1000000 for MuJoCo; 300000 for the recommender].
+    #[arg(long, env = "JSAE_ENV_STEPS")]
+    pub env_steps: Option<u64>,
+    /// Run directory.
+    #[arg(long, env = "JSAE_OUT")]
+    pub out: PathBuf,
+}
+
+/// Runs the learner process: exit 0 at the end of the run (or on SIGINT/SIGTERM), 2 for a bad
+/// configuration, 1 when it fails.
+pub fn main(args: LearnerArgs) -> std::process::ExitCode {
+    let config = args
+        .run
+        .layered()
+        .map_err(|e| e.to_string())
+        .and_then(|mut c| {
+            c.env_steps = args.env_steps.unwrap_or(c.env_steps);
+            c.out = args.out.clone();
+            c.validate().map_err(|e| e.to_string())?;
+            let embedder = args.embedder.for_run(&c)?;
+            Ok((c, embedder))
+        });
+    net::service_main(
+        "jsae-learner",
+        config,
+        |(config, embedder), shutdown| async move {
+            let listener = net::bind(&args.listen.listen).await?;
+            println!("jsae-learner listening on {}", listener.local_addr()?);
+            let options = LearnerOptions {
+                out: args.out,
+                embedder,
+            };
+            Ok(serve(config, listener, options, shutdown).await?)
+        },
+        |summary| {
+            if let Some(summary) = summary {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&summary).unwrap_or_default()
+                );
+            }
+        },
+    )
+}

@@ -1,0 +1,116 @@
+//! The learner's training thread: it owns the [`Learner`] and the run directory (metrics.csv
+//! per update, the latest policy checkpoint before each snapshot is published, summary.json
+//! at the end) and ends the run: at `env_steps` it asks the actors for deterministic
+//! evaluation episodes, writes the summary on the first report and tells the actors to
+//! finish.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::settings::TrainConfig;
+use jsae_proto::wire::pb;
+use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
+use tokio::sync::{mpsc, watch};
+
+use super::grpc::{Input, PolicyState};
+use crate::{Ingested, Learner, MetricsSink, Summary, update_scalars};
+
+/// The latest policy checkpoint of a run directory, if any.
+pub fn latest_checkpoint(out: &RunDir) -> Option<PolicySnapshot> {
+    let (version, bytes) = out.checkpoints().read_latest(Weights::Policy)?;
+    Some(PolicySnapshot { version, bytes })
+}
+
+pub(super) struct LearnerLoop {
+    pub(super) config: TrainConfig,
+    pub(super) out: RunDir,
+    pub(super) learner: Learner,
+    pub(super) metrics: Box<dyn MetricsSink>,
+    pub(super) publish: watch::Sender<PolicyState>,
+    pub(super) version: Arc<AtomicU64>,
+    pub(super) embedding: Option<EmbeddingSnapshot>,
+    pub(super) started: Instant,
+}
+
+impl LearnerLoop {
+    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> std::io::Result<()> {
+        self.out
+            .checkpoints()
+            .write_latest(Weights::Policy, snapshot.version, &snapshot.bytes)?;
+        self.version.store(snapshot.version, Ordering::Release);
+        let snapshot = Arc::new(snapshot);
+        self.publish.send_modify(|s| s.snapshot = Some(snapshot));
+        Ok(())
+    }
+
+    pub(super) fn run(mut self, mut queue: mpsc::Receiver<Input>) -> anyhow::Result<Summary> {
+        let first = self.learner.snapshot()?;
+        self.publish_snapshot(first)?;
+        let request = pb::EvalRequest {
+            request_id: self.started.elapsed().as_nanos() as u64 | 1,
+            episodes: self.config.eval_episodes as u32,
+            seed: self.config.eval_seed(),
+        };
+        let mut evaluating = false;
+        while let Some(input) = queue.blocking_recv() {
+            match input {
+                Input::Embedding(s) => self.embedding = Some(s),
+                Input::Fragment(f) if !evaluating => {
+                    match self.learner.ingest(*f) {
+                        Ok(Ingested::Updated(report)) => {
+                            let loss = self.embedding.as_ref().map(|s| s.model_loss);
+                            let wall = self.started.elapsed().as_secs_f64();
+                            self.metrics
+                                .record(&update_scalars(&report.metrics, wall, loss))?;
+                            tracing::info!(
+                                "update {}: {} env steps, return {:.3}, lag {:.2}",
+                                report.metrics.update,
+                                report.metrics.env_steps,
+                                report.metrics.return_mean.unwrap_or(f64::NAN),
+                                report.metrics.policy_lag_mean
+                            );
+                            self.publish_snapshot(report.snapshot)?;
+                        }
+                        Ok(_) => {}
+                        Err(e) => tracing::warn!("fragment refused: {e}"),
+                    }
+                    if self.learner.env_steps() >= self.config.env_steps {
+                        evaluating = true;
+                        tracing::info!(
+                            "{} env steps reached: asking the actors for {} evaluation episodes",
+                            self.learner.env_steps(),
+                            request.episodes
+                        );
+                        self.publish.send_modify(|s| s.evaluate = Some(request));
+                    }
+                }
+                Input::Fragment(_) => {}
+                Input::Eval(report, id) if evaluating && id == request.request_id => {
+                    return self.finish(&report);
+                }
+                Input::Eval(..) => {}
+            }
+        }
+        anyhow::bail!("the learner stopped before the run ended")
+    }
+
+    fn finish(self, eval: &EvalReport) -> anyhow::Result<Summary> {
+        let summary = self.learner.summary(
+            &self.config,
+            self.learner.env_steps(),
+            self.started.elapsed().as_secs_f64(),
+            eval,
+        );
+        let ckpt = self.out.checkpoints();
+        let last = self.learner.snapshot()?;
+        ckpt.write_versioned(Weights::Policy, last.version, &last.bytes)?;
+        if let Some(e) = &self.embedding {
+            ckpt.write_versioned(Weights::Embedding, e.version, &e.bytes)?;
+        }
+        summary.write(&self.out)?;
+        self.publish.send_modify(|s| s.finished = true);
+        Ok(summary)
+    }
+}

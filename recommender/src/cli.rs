@@ -1,0 +1,120 @@
+//! `jsae recommender`: the command line, the settings it serves with, and the process's main.
+
+use std::path::PathBuf;
+use std::sync::Arc;
+
+use jsae_nn::DeviceKind;
+use jsae_proto::net::{self, Failure};
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{EmbedderFlag, EnvName, RunFlags, TrainConfig};
+
+use crate::grpc::serve;
+use crate::scoring::Recommender;
+use crate::sources::{RUN_POLL, WeightSources};
+
+/// The recommender's command line.
+#[derive(Debug, Clone, clap::Args)]
+pub struct RecommenderArgs {
+    /// Address to serve on (port 0: any free port; the first stdout line says which).
+    #[arg(long, env = "JSAE_LISTEN", default_value = "127.0.0.1:50060")]
+    pub listen: String,
+    /// Learner URL to follow for policy snapshots (`http://host:port`).
+    #[arg(long, env = "JSAE_LEARNER")]
+    pub learner: Option<String>,
+    /// `--embedder`: the embedder to follow with `--learner`.
+    #[command(flatten)]
+    pub embedder: EmbedderFlag,
+    /// A finished run directory: its config.toml and latest checkpoints are used.
+    #[arg(long, env = "JSAE_RUN")]
+    pub run: Option<PathBuf>,
+    /// `--env/--algo/--seed/--config` (the environment must be the recommender; the settings
+    /// file's `[environment.recommender]` picks the data; `--run` gives its config.toml).
+    #[command(flatten)]
+    pub flags: RunFlags,
+    /// Session store directory: submitted sessions are appended there, and the n-gram
+    /// model is rebuilt from it [default: the settings', else sessions are checked but not
+    /// kept].
+    #[arg(long, env = "JSAE_STORE_DIR")]
+    pub store_dir: Option<PathBuf>,
+    /// burn device [default: flex].
+    #[arg(long, value_enum, env = "JSAE_DEVICE")]
+    pub device: Option<DeviceKind>,
+}
+
+impl RecommenderArgs {
+    /// The settings file: `--config`, else the run directory's config.toml.
+    fn settings_file(&self) -> Option<PathBuf> {
+        match (&self.flags.config, &self.run) {
+            (Some(f), _) => Some(f.clone()),
+            (None, Some(run)) => Some(RunDir::new(run).config_toml()),
+            (None, None) => None,
+        }
+    }
+}
+
+fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
+    let flags = RunFlags {
+        env: Some(args.flags.env.unwrap_or(EnvName::Recommender)),
+        config: args.settings_file(),
+        ..args.flags.clone()
+    };
+    let mut c = flags.layered().map_err(|e| e.to_string())?;
+    if c.env != EnvName::Recommender {
+        return Err(format!(
+            "the settings are for --env {}, not recommender",
+            c.env.as_str()
+        ));
+    }
+    if let Some(dir) = &args.store_dir {
+        c.environment.recommender.store_dir = dir.clone();
+    }
+    c.device = args.device.unwrap_or(c.device);
+    c.validate().map_err(|e| e.to_string())?;
+    if args.learner.is_none() && args.run.is_none() {
+        return Err("give --learner URL (follow a run) or --run DIR (a finished run)".into());
+    }
+    if args.learner.is_some() {
+        args.embedder
+            .for_run(&c)
+            .map_err(|e| format!("{e} with --learner"))?;
+    }
+    Ok(c)
+}
+
+/// Runs the recommender service: exit 0 on SIGINT/SIGTERM, 2 for a bad configuration, 1 when
+/// it fails. With `--run DIR` it waits for the run's config.toml (a run still starting).
+pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
+    net::service_main(
+        "jsae recommender",
+        Ok(args),
+        |args, mut shutdown| async move {
+            if let (Some(file), None) = (args.settings_file(), &args.flags.config) {
+                if !file.exists() {
+                    tracing::info!("recommender: waiting for {}", file.display());
+                }
+                while !file.exists() {
+                    tokio::select! {
+                        () = &mut shutdown => return Ok(()),
+                        () = tokio::time::sleep(RUN_POLL) => {}
+                    }
+                }
+            }
+            let config = config_of(&args).map_err(Failure::config)?;
+            let rec = Recommender::new(&config, config.device).map_err(Failure::config)?;
+            if !rec.has_store() {
+                tracing::warn!(
+                    "recommender: no session store (--store-dir): sessions are not kept"
+                );
+            }
+            let sources = WeightSources {
+                learner: args.learner.clone(),
+                embedder: args.embedder.embedder.clone(),
+                run: args.run.clone(),
+            };
+            let listener = net::bind(&args.listen).await?;
+            println!("jsae recommender listening on {}", listener.local_addr()?);
+            Ok(serve(Arc::new(rec), listener, sources, shutdown).await?)
+        },
+        |()| {},
+    )
+}

@@ -1,0 +1,273 @@
+//! The Recommender's core, without the transport: the weights in use (swapped in whole as new
+//! versions arrive), `recommend` (the state from a purchase history, then JSAE's nearest items
+//! to the policy's mean action embedding or PPO's most likely items) and the session store.
+//!
+//! - JSAE: `x = phi(state)`, the policy's mean action embedding `e`, then the `k` items whose
+//!   `g` rows are nearest to `e` (score: minus the distance). PPO: the `k` most likely items
+//!   of the policy's softmax (score: the probability).
+//! - The state is the last `history` known items of the request (items outside the model's
+//!   catalogue are ignored and counted), padded with "none" as at the start of an episode.
+
+use std::sync::{Arc, Mutex, RwLock};
+
+use jsae_agent::{SwapError, Weights};
+use jsae_envs::recsys::sessions::{MAX_ID_BYTES, Session};
+use jsae_envs::recsys::store::SessionStore;
+use jsae_envs::recsys::{ModelHandle, RecsysError, model_handle};
+use jsae_nn::{BurnDevice, DeviceKind};
+use jsae_proto::settings::{EnvName, TrainConfig};
+use jsae_proto::{EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace};
+
+/// Longest `history` a Recommend request may carry.
+pub const MAX_HISTORY: usize = 1000;
+/// Most sessions one SubmitSessions call may carry; more gets RESOURCE_EXHAUSTED (the
+/// sessions before are kept).
+pub const MAX_SESSIONS_PER_CALL: u64 = 100_000;
+/// Errors listed in a SubmitSummary (the count of rejected sessions is always exact).
+pub const MAX_ERRORS_LISTED: usize = 100;
+/// One recommendation.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Recommendation {
+    /// `(item id, score)`, best first.
+    pub items: Vec<(String, f32)>,
+    /// The policy version used.
+    pub policy_version: u64,
+    /// The embedding version used (0 for PPO).
+    pub embedding_version: u64,
+    /// History entries outside the catalogue.
+    pub unknown_items: u32,
+}
+
+/// The recommender's core, without the transport.
+pub struct Recommender {
+    config: TrainConfig,
+    model: Arc<ModelHandle>,
+    states: StateSpace,
+    /// The weights in use, replaced whole (readers keep the `Arc` they took).
+    weights: RwLock<Arc<Weights>>,
+    store: Option<Mutex<SessionStore>>,
+}
+
+impl std::fmt::Debug for Recommender {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let w = self.weights();
+        f.debug_struct("Recommender")
+            .field("algo", &self.config.algo)
+            .field("policy_version", &w.policy_version())
+            .field("embedding_version", &w.embedding_version())
+            .finish()
+    }
+}
+
+impl Recommender {
+    /// A recommender for a `recommender` run's settings (the n-gram model's data and session
+    /// store are the settings' `environment.recommender`).
+    pub fn new(config: &TrainConfig, device: DeviceKind) -> Result<Self, RecsysError> {
+        if config.env != EnvName::Recommender {
+            return Err(RecsysError::Data(format!(
+                "the settings are for --env {}, not recommender",
+                config.env.as_str()
+            )));
+        }
+        let r = &config.environment.recommender;
+        let model = model_handle(r)?;
+        let (states, actions) = EnvName::Recommender.spaces(&config.environment);
+        let store = if r.store_dir.as_os_str().is_empty() {
+            None
+        } else {
+            Some(Mutex::new(SessionStore::open(&r.store_dir)?))
+        };
+        let weights = Weights::new(config, &states, &actions, &device.device());
+        Ok(Self {
+            config: config.clone(),
+            model,
+            states,
+            weights: RwLock::new(Arc::new(weights)),
+            store,
+        })
+    }
+
+    fn weights(&self) -> Arc<Weights> {
+        self.weights
+            .read()
+            .map_or_else(|p| Arc::clone(p.get_ref()), |w| Arc::clone(&w))
+    }
+
+    /// Applies `swap` to a copy of the weights in use and puts the copy in their place when
+    /// it changed them.
+    fn swap(
+        &self,
+        swap: impl FnOnce(&mut Weights) -> Result<bool, SwapError>,
+    ) -> Result<(), String> {
+        let mut slot = self.weights.write().unwrap_or_else(|p| p.into_inner());
+        let mut next = Weights::clone(&slot);
+        if swap(&mut next).map_err(|e| e.to_string())? {
+            *slot = Arc::new(next);
+        }
+        Ok(())
+    }
+
+    /// The settings served.
+    pub fn config(&self) -> &TrainConfig {
+        &self.config
+    }
+
+    /// The policy version in use (None before the first).
+    pub fn policy_version(&self) -> Option<u64> {
+        self.weights().policy_version()
+    }
+
+    /// The embedding version in use (0: none).
+    pub fn embedding_version(&self) -> u64 {
+        self.weights().embedding_version()
+    }
+
+    /// Swaps in a policy snapshot (any other version than the one in use).
+    pub fn set_policy(&self, snapshot: &PolicySnapshot) -> Result<(), String> {
+        self.swap(|w| w.set_policy(snapshot))
+    }
+
+    /// Swaps in a newer embedding snapshot.
+    pub fn set_embedding(&self, snapshot: &EmbeddingSnapshot) -> Result<(), String> {
+        self.swap(|w| w.set_embedding(snapshot))
+    }
+
+    /// The `k` best items after `history` (item ids, oldest first).
+    pub fn recommend(&self, history: &[String], k: u32) -> Result<Recommendation, RpcError> {
+        let bad = RpcError::InvalidArgument;
+        if history.is_empty() {
+            return Err(bad("history is empty: give at least one item id".into()));
+        }
+        if history.len() > MAX_HISTORY {
+            return Err(bad(format!(
+                "history holds {} items, more than the limit of {MAX_HISTORY}",
+                history.len()
+            )));
+        }
+        if let Some(i) = history
+            .iter()
+            .position(|h| h.is_empty() || h.len() > MAX_ID_BYTES)
+        {
+            return Err(bad(format!(
+                "history[{i}] is empty or longer than {MAX_ID_BYTES} bytes"
+            )));
+        }
+        let model = self.model.current();
+        let catalogue = model.catalogue();
+        let items = catalogue.len();
+        if k == 0 || k as usize > items {
+            return Err(bad(format!(
+                "k must be in 1..={items} (the catalogue's size), got {k}"
+            )));
+        }
+        let weights = self.weights();
+        let Some((policy_version, policy)) = weights.policy() else {
+            return Err(RpcError::Unavailable(
+                "no policy yet: waiting for the learner's first snapshot".into(),
+            ));
+        };
+        let known: Vec<u32> = history.iter().filter_map(|h| catalogue.slot(h)).collect();
+        let unknown_items = (history.len() - known.len()) as u32;
+        let n = self.config.environment.recommender.history as usize;
+        let mut state = vec![catalogue.none(); n];
+        let tail = &known[known.len().saturating_sub(n)..];
+        state[n - tail.len()..].copy_from_slice(tail);
+        let batch = StateBatch::Categorical {
+            factors: n,
+            data: state,
+        };
+        let mut x = Vec::new();
+        let (scored, embedding_version) = if self.config.algo.representation().decodes_actions() {
+            let (Some(embedding), Some(nearest)) = (
+                weights.embedding(),
+                weights.embedding().and_then(|e| e.nearest()),
+            ) else {
+                return Err(RpcError::Unavailable(
+                    "no embedding yet: waiting for the embedder's first snapshot".into(),
+                ));
+            };
+            embedding.embed_states(&batch, &mut x);
+            let e = policy.head_outputs(&x);
+            let nearest = nearest.k_nearest(&e, k as usize, items);
+            let scored = nearest.into_iter().map(|(a, d)| (a, -d)).collect();
+            (scored, embedding.version())
+        } else {
+            batch.write_features(&self.states, &mut x);
+            let logits = policy.head_outputs(&x);
+            (most_likely(&logits, items, k as usize), 0)
+        };
+        Ok(Recommendation {
+            items: scored
+                .into_iter()
+                .filter_map(|(slot, score)| catalogue.id(slot).map(|id| (id.to_owned(), score)))
+                .collect(),
+            policy_version,
+            embedding_version,
+            unknown_items,
+        })
+    }
+
+    /// Appends accepted sessions to the store (synced before it returns).
+    pub(crate) fn store(&self, sessions: &[Session]) -> Result<(), RpcError> {
+        match &self.store {
+            Some(store) if !sessions.is_empty() => store
+                .lock()
+                .unwrap_or_else(|p| p.into_inner())
+                .append(sessions)
+                .map_err(|e| RpcError::Internal(format!("session store: {e}"))),
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether sessions are kept (a session store is configured).
+    pub fn has_store(&self) -> bool {
+        self.store.is_some()
+    }
+}
+
+/// The `k` most likely of the first `items` actions under `logits`, as `(action, p)`.
+fn most_likely(logits: &[f32], items: usize, k: usize) -> Vec<(u32, f32)> {
+    let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+    let z: f32 = logits.iter().map(|l| (l - max).exp()).sum();
+    let mut all: Vec<(u32, f32)> = logits
+        .iter()
+        .take(items)
+        .enumerate()
+        .map(|(a, &l)| (a as u32, (l - max).exp() / z))
+        .collect();
+    best_k(&mut all, k);
+    all
+}
+
+/// Keeps the `k` highest scores, highest first (ties: lower index first).
+fn best_k(all: &mut Vec<(u32, f32)>, k: usize) {
+    let order = |a: &(u32, f32), b: &(u32, f32)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+    let k = k.min(all.len());
+    if k == 0 {
+        all.clear();
+        return;
+    }
+    all.select_nth_unstable_by(k - 1, order);
+    all.truncate(k);
+    all.sort_by(order);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn best_k_orders_by_score_then_index() {
+        let mut v = vec![(0, 0.1), (1, 0.5), (2, 0.5), (3, 0.9), (4, -1.0)];
+        best_k(&mut v, 3);
+        assert_eq!(v, vec![(3, 0.9), (1, 0.5), (2, 0.5)]);
+    }
+
+    #[test]
+    fn most_likely_is_the_softmax_of_the_filled_slots() {
+        let got = most_likely(&[0.0, (2.0f32).ln(), 10.0], 2, 2);
+        assert_eq!(got[0].0, 1);
+        assert_eq!(got[1].0, 0);
+        assert!((got[0].1 / got[1].1 - 2.0).abs() < 1e-5);
+    }
+}

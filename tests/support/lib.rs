@@ -1,0 +1,66 @@
+//! Helpers shared by the workspace integration tests.
+
+#![forbid(unsafe_code)]
+
+pub mod services;
+
+use std::path::PathBuf;
+
+use jsae_learner::MetricsTable;
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+
+/// A fresh, empty directory under the system temp dir for one test.
+pub fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("jsae-test-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap_or_else(|e| panic!("temp dir {}: {e}", dir.display()));
+    dir
+}
+
+/// A configuration small enough for a test: a short run with a small pre-training set.
+pub fn small_config(env: EnvName, algo: Algo, seed: u64, out: PathBuf) -> TrainConfig {
+    let mut c = TrainConfig::defaults(env, algo);
+    c.seed = seed;
+    c.env_steps = 16_384;
+    c.envs_per_actor = 8;
+    c.rollout_len = 64;
+    c.eval_episodes = 3;
+    c.embedding.pretrain_transitions = 4_096;
+    c.embedding.pretrain_epochs = 3;
+    c.ppo.epochs = 2;
+    c.out = out;
+    c
+}
+
+/// `summary.json` without the fields that measure time.
+pub fn summary_without_timing(dir: &std::path::Path) -> serde_json::Value {
+    let text =
+        std::fs::read_to_string(RunDir::new(dir).summary_json()).expect("summary.json written");
+    let mut v: serde_json::Value = serde_json::from_str(&text).expect("summary.json is JSON");
+    if let Some(map) = v.as_object_mut() {
+        map.remove("wall_seconds");
+        map.remove("steps_per_second");
+    }
+    v
+}
+
+/// `metrics.csv` without its `wall_seconds` column, one string per row.
+pub fn metrics_without_timing(dir: &std::path::Path) -> Vec<String> {
+    let table = MetricsTable::read(&RunDir::new(dir).metrics_csv()).expect("metrics.csv read");
+    let columns: Vec<&String> = table
+        .columns()
+        .iter()
+        .filter(|c| *c != "wall_seconds")
+        .collect();
+    let values: Vec<Vec<Option<f64>>> = columns.iter().map(|c| table.column(c)).collect();
+    (0..table.len())
+        .map(|row| {
+            values
+                .iter()
+                .map(|col| col[row].map(|v| v.to_string()).unwrap_or_default())
+                .collect::<Vec<_>>()
+                .join(",")
+        })
+        .collect()
+}
