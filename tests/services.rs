@@ -6,6 +6,7 @@ use std::time::Duration;
 
 use jsae_actor::service::ActorExit;
 use jsae_embedder::service::EmbedderOptions;
+use jsae_learner::MetricsTable;
 use jsae_proto::ActionBatch;
 use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{Algo, EnvName};
@@ -47,7 +48,7 @@ async fn two_actors_feed_one_learner_and_policy_versions_reach_them() {
         "both counted"
     );
     assert!(summary.learner_updates >= 2);
-    assert!(c.out.join("summary.json").exists());
+    assert!(RunDir::new(&c.out).summary_json().exists());
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -68,7 +69,7 @@ async fn embedding_versions_reach_the_actors_and_the_learner() {
     assert!(increasing(&report.embedding_versions), "{report:?}");
     assert!(report.embedding_versions.len() >= 2, "{report:?}");
     assert!(summary.embedding_version >= 1, "{summary:?}");
-    let ckpt = c.out.join("checkpoints");
+    let ckpt = RunDir::new(&c.out).checkpoints().path().to_path_buf();
     assert!(
         std::fs::read_dir(&ckpt)
             .expect("checkpoints")
@@ -143,11 +144,11 @@ async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
     assert!(summary.policy_version > saved);
     assert!(summary.learner_updates > saved, "{summary:?}");
     // metrics.csv goes on numbering the updates across the restart
-    let updates: Vec<u64> = std::fs::read_to_string(c.out.join("metrics.csv"))
-        .expect("metrics.csv")
-        .lines()
-        .skip(1)
-        .filter_map(|l| l.split(',').next()?.parse().ok())
+    let metrics = MetricsTable::read(&RunDir::new(&c.out).metrics_csv()).expect("metrics.csv");
+    let updates: Vec<u64> = metrics
+        .column("update")
+        .into_iter()
+        .map(|u| u.expect("an update number") as u64)
         .collect();
     assert!(increasing(&updates), "{updates:?}");
 }
@@ -319,7 +320,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
     c.embedding.pretrain_transitions = 512;
     c.embedding.pretrain_epochs = 1;
     let options = EmbedderOptions {
-        checkpoint_dir: Some(c.out.join("checkpoints")),
+        checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),
     };
     let first = start_embedder_with(&c, options.clone()).await;
     let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())

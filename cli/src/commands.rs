@@ -64,15 +64,14 @@ pub enum Command {
     /// Returns of reference recommenders (uniformly random, and the myopic most likely
     /// next item read from the n-gram model) under a run's evaluation protocol.
     RecommenderBaseline {
-        /// Settings file (`[environment.recommender]` picks the data).
-        #[arg(long, env = "JSAE_CONFIG")]
-        config: Option<PathBuf>,
+        /// `--env/--algo/--seed/--config` (the environment must be the recommender; the
+        /// settings file's `[environment.recommender]` picks the data; the evaluation seed of
+        /// a run with this seed is used).
+        #[command(flatten)]
+        run: RunFlags,
         /// Episodes per policy.
         #[arg(long, default_value_t = 1000)]
         episodes: usize,
-        /// Seed (the evaluation seed of a run with this seed is used).
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
     },
     /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
     Health(crate::health::HealthArgs),
@@ -205,18 +204,15 @@ pub fn run(command: Command) -> ExitCode {
             print!("{}", crate::bench::transport::run(quick));
             ExitCode::SUCCESS
         }
-        Command::RecommenderBaseline {
-            config,
-            episodes,
-            seed,
-        } => {
-            let config =
-                TrainConfig::from_layers(Some(EnvName::Recommender), None, config.as_deref())
-                    .map_err(|e| e.to_string())
-                    .and_then(|mut c| {
-                        c.seed = seed;
-                        c.validate().map(|()| c).map_err(|e| e.to_string())
-                    });
+        Command::RecommenderBaseline { run, episodes } => {
+            let run = RunFlags {
+                env: Some(run.env.unwrap_or(EnvName::Recommender)),
+                ..run
+            };
+            let config = run
+                .layered()
+                .and_then(|c| c.validate().map(|()| c))
+                .map_err(|e| e.to_string());
             let config = match config {
                 Ok(c) if c.env == EnvName::Recommender => c,
                 Ok(c) => {

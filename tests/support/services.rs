@@ -7,8 +7,9 @@ use std::time::Duration;
 
 use jsae_actor::service::{ActorOptions, ActorReport};
 use jsae_embedder::service::EmbedderOptions;
-use jsae_learner::Summary;
 use jsae_learner::service::LearnerOptions;
+use jsae_learner::{MetricsTable, Summary};
+use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_proto::wire::pb;
 use jsae_proto::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
@@ -146,9 +147,9 @@ pub fn config(env: EnvName, algo: Algo, name: &str) -> TrainConfig {
     c
 }
 
+/// Rows of a run directory's metrics.csv so far (0 before it exists).
 pub fn metrics_rows(out: &Path) -> usize {
-    std::fs::read_to_string(out.join("metrics.csv"))
-        .map_or(0, |t| t.lines().count().saturating_sub(1))
+    MetricsTable::read(&RunDir::new(out).metrics_csv()).map_or(0, |t| t.len())
 }
 
 pub async fn wait_for_rows(out: &Path, rows: usize) {

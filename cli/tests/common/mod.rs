@@ -1,4 +1,4 @@
-//! Helpers shared by the actor crate's integration tests.
+//! Helpers shared by the cli crate's integration tests.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -7,7 +7,7 @@ use std::process::Command;
 pub fn repo_root() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
         .parent()
-        .expect("the actor crate lives in the workspace")
+        .expect("the cli crate lives in the workspace")
         .to_path_buf()
 }
 
