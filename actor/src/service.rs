@@ -416,7 +416,7 @@ pub struct ActorArgs {
 pub fn main(args: ActorArgs) -> std::process::ExitCode {
     let config = args
         .run
-        .layered()
+        .for_service()
         .map_err(|e| e.to_string())
         .and_then(|mut c| {
             c.envs_per_actor = args.envs.unwrap_or(c.envs_per_actor);

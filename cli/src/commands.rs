@@ -62,7 +62,9 @@ pub enum Command {
     /// An actor (as `jsae-actor`).
     Actor(jsae_actor::service::ActorArgs),
     /// Returns of reference recommenders (uniformly random, and the myopic most likely
-    /// next item read from the n-gram model) under a run's evaluation protocol.
+    /// next item read from the n-gram model) under a run's evaluation protocol: the
+    /// evaluation seed of a run with `--seed N`, the data of the settings file's
+    /// `[environment.recommender]`.
     RecommenderBaseline {
         /// `--env/--algo/--seed/--config` (the environment must be the recommender; the
         /// settings file's `[environment.recommender]` picks the data; the evaluation seed of
@@ -81,7 +83,9 @@ pub enum Command {
     /// summary as JSON; exit 1 when some were rejected).
     SubmitSessions(crate::recommender_client::SubmitArgs),
     /// The Recommender gRPC service: recommendations from a live run's or a finished run's
-    /// policy, and session submission into the session store.
+    /// policy, and session submission into the session store. The settings are `--config`,
+    /// else the `--run` directory's config.toml; `--env`, if given, must be recommender;
+    /// `--embedder` is needed with `--learner` for `--algo jsae`.
     Recommender(jsae_recommender::RecommenderArgs),
 }
 

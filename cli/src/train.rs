@@ -7,7 +7,9 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use jsae_embedder::EmbedderTrainer;
-use jsae_learner::{CsvMetrics, Ingested, Learner, MetricsSink, Summary, update_scalars};
+use jsae_learner::{
+    CsvMetrics, Ingested, Learner, MetricsSink, Summary, UPDATE_COLUMNS, update_scalars,
+};
 use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 
@@ -75,7 +77,7 @@ pub fn train_one_process(
     let ckpt = run.checkpoints();
     std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
     std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
-    let mut metrics = CsvMetrics::create(&run.metrics_csv()).map_err(io(&dir))?;
+    let mut metrics = CsvMetrics::create(&run.metrics_csv(), &UPDATE_COLUMNS).map_err(io(&dir))?;
 
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))

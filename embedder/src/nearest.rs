@@ -126,6 +126,16 @@ mod tests {
     }
 
     #[test]
+    fn k_nearest_gives_euclidean_distances_within_the_rows_asked() {
+        // rows: (0,0), (3,4), (1,0), (0,0) — the last is outside `rows` = 3
+        let index = NearestAction::new(&[0.0, 0.0, 3.0, 4.0, 1.0, 0.0, 0.0, 0.0], 2);
+        let got = index.k_nearest(&[0.0, 0.0], 3, 3);
+        assert_eq!(got, vec![(0, 0.0), (2, 1.0), (1, 5.0)]);
+        let ties = index.k_nearest(&[0.0, 0.0], 2, 4);
+        assert_eq!(ties, vec![(0, 0.0), (3, 0.0)]);
+    }
+
+    #[test]
     fn lookup_equals_brute_force() {
         let mut rng = ChaCha8Rng::seed_from_u64(5);
         for (n, d) in [(512, 2), (4096, 2), (100, 7), (1, 3)] {

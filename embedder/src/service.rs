@@ -161,17 +161,17 @@ fn training_loop(
             );
             if let Some(dir) = &options.checkpoint_dir {
                 let ckpt = Checkpoints::new(dir);
-                let written = ckpt
-                    .write_versioned(Weights::Embedding, snap.version, &snap.bytes)
-                    .and_then(|()| {
-                        ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
-                    });
-                if let Err(e) = written {
-                    tracing::warn!(
-                        "embedding checkpoint v{} in {}: {e}",
-                        snap.version,
-                        dir.display()
-                    );
+                for written in [
+                    ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes),
+                    ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes),
+                ] {
+                    if let Err(e) = written {
+                        tracing::warn!(
+                            "embedding checkpoint v{} in {}: {e}",
+                            snap.version,
+                            dir.display()
+                        );
+                    }
                 }
             }
             publish.send_replace(Some(Arc::new(snap)));
@@ -247,7 +247,10 @@ pub struct EmbedderArgs {
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
 /// configuration, 1 when serving fails.
 pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
-    let config = args.run.layered().and_then(|c| c.validate().map(|()| c));
+    let config = args
+        .run
+        .for_service()
+        .and_then(|c| c.validate().map(|()| c));
     let options = EmbedderOptions {
         checkpoint_dir: args.checkpoint_dir,
     };

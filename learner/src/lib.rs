@@ -22,7 +22,7 @@ mod record;
 pub mod service;
 
 pub use jsae_proto::settings::PpoConfig;
-pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, update_scalars};
+pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,

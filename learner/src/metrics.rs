@@ -18,7 +18,34 @@ pub trait MetricsSink: Send {
     fn record(&mut self, row: &[Scalar]) -> io::Result<()>;
 }
 
-/// The scalars of one learner update: what `metrics.csv` holds per row.
+/// The scalars of one learner update, in the order of `metrics.csv`'s columns.
+pub const UPDATE_COLUMNS: [&str; 23] = [
+    "update",
+    "env_steps",
+    "wall_seconds",
+    "return_mean",
+    "success_rate",
+    "episodes",
+    "policy_lag_mean",
+    "policy_lag_max",
+    "dropped_lag",
+    "dropped_embedding",
+    "policy_loss",
+    "value_loss",
+    "entropy",
+    "approx_kl",
+    "clip_frac",
+    "grad_norm",
+    "explained_variance",
+    "lr",
+    "epochs",
+    "log_std_mean",
+    "policy_version",
+    "embedding_version",
+    "embedding_loss",
+];
+
+/// One learner update as named scalars (the names are [`UPDATE_COLUMNS`]);
 /// `embedding_loss` is the latest embedding model loss (JSAE).
 pub fn update_scalars(
     m: &UpdateMetrics,
@@ -26,65 +53,66 @@ pub fn update_scalars(
     embedding_loss: Option<f32>,
 ) -> Vec<Scalar> {
     let n = |v: u64| Some(v as f64);
-    vec![
-        ("update", n(m.update)),
-        ("env_steps", n(m.env_steps)),
-        (
-            "wall_seconds",
-            Some((wall_seconds * 1000.0).round() / 1000.0),
-        ),
-        ("return_mean", m.return_mean),
-        ("success_rate", m.success_rate),
-        ("episodes", n(m.episodes as u64)),
-        ("policy_lag_mean", Some(m.policy_lag_mean)),
-        ("policy_lag_max", n(m.policy_lag_max)),
-        ("dropped_lag", n(m.dropped_lag)),
-        ("dropped_embedding", n(m.dropped_embedding)),
-        ("policy_loss", Some(m.policy_loss)),
-        ("value_loss", Some(m.value_loss)),
-        ("entropy", Some(m.entropy)),
-        ("approx_kl", Some(m.approx_kl)),
-        ("clip_frac", Some(m.clip_frac)),
-        ("grad_norm", Some(m.grad_norm)),
-        ("explained_variance", Some(m.explained_variance)),
-        ("lr", Some(m.lr)),
-        ("epochs", n(m.epochs as u64)),
-        ("log_std_mean", Some(m.log_std_mean)),
-        ("policy_version", n(m.policy_version)),
-        ("embedding_version", n(m.embedding_version)),
-        ("embedding_loss", embedding_loss.map(f64::from)),
-    ]
+    let values = [
+        n(m.update),
+        n(m.env_steps),
+        Some((wall_seconds * 1000.0).round() / 1000.0),
+        m.return_mean,
+        m.success_rate,
+        n(m.episodes as u64),
+        Some(m.policy_lag_mean),
+        n(m.policy_lag_max),
+        n(m.dropped_lag),
+        n(m.dropped_embedding),
+        Some(m.policy_loss),
+        Some(m.value_loss),
+        Some(m.entropy),
+        Some(m.approx_kl),
+        Some(m.clip_frac),
+        Some(m.grad_norm),
+        Some(m.explained_variance),
+        Some(m.lr),
+        n(m.epochs as u64),
+        Some(m.log_std_mean),
+        n(m.policy_version),
+        n(m.embedding_version),
+        embedding_loss.map(f64::from),
+    ];
+    UPDATE_COLUMNS.into_iter().zip(values).collect()
 }
 
-/// `metrics.csv`: a header of the scalars' names, then one row per record.
+/// `metrics.csv`: a header of the columns' names, then one row per record.
 #[derive(Debug)]
 pub struct CsvMetrics {
     writer: csv::Writer<File>,
     path: PathBuf,
-    header_written: bool,
+    columns: Vec<&'static str>,
 }
 
 impl CsvMetrics {
-    /// Creates (or empties) the file; the header is written with the first row.
-    pub fn create(path: &Path) -> io::Result<Self> {
+    /// Creates (or empties) the file and writes its header.
+    pub fn create(path: &Path, columns: &[&'static str]) -> io::Result<Self> {
+        let mut writer = csv::Writer::from_writer(File::create(path)?);
+        writer.write_record(columns)?;
+        writer.flush()?;
         Ok(Self {
-            writer: csv::Writer::from_writer(File::create(path)?),
+            writer,
             path: path.to_path_buf(),
-            header_written: false,
+            columns: columns.to_vec(),
         })
     }
 
     /// Opens the file to add rows (a resumed learner), or creates it.
-    pub fn append(path: &Path) -> io::Result<Self> {
-        let has_rows = std::fs::metadata(path).is_ok_and(|m| m.len() > 0);
-        if !has_rows {
-            return Self::create(path);
+    pub fn append(path: &Path, columns: &[&'static str]) -> io::Result<Self> {
+        let has_header = std::fs::metadata(path).is_ok_and(|m| m.len() > 0);
+        if !has_header {
+            return Self::create(path, columns);
         }
         let file = std::fs::OpenOptions::new().append(true).open(path)?;
         Ok(Self {
             writer: csv::Writer::from_writer(file),
             path: path.to_path_buf(),
-            header_written: true,
+            columns: columns.to_vec(),
         })
     }
 
@@ -96,9 +124,16 @@ impl CsvMetrics {
 
 impl MetricsSink for CsvMetrics {
     fn record(&mut self, row: &[Scalar]) -> io::Result<()> {
-        if !self.header_written {
-            self.writer.write_record(row.iter().map(|(name, _)| name))?;
-            self.header_written = true;
+        if !row
+            .iter()
+            .map(|(name, _)| *name)
+            .eq(self.columns.iter().copied())
+        {
+            return Err(io::Error::other(format!(
+                "{}: a row whose names are not the columns {:?}",
+                self.path.display(),
+                self.columns
+            )));
         }
         self.writer.write_record(
             row.iter()
@@ -191,11 +226,17 @@ mod tests {
     #[test]
     fn rows_written_by_name_read_back_by_name() {
         let path = std::env::temp_dir().join(format!("jsae-metrics-{}.csv", std::process::id()));
-        let mut sink = CsvMetrics::create(&path).expect("create");
+        let columns = ["env_steps", "return_mean"];
+        let mut sink = CsvMetrics::create(&path, &columns).expect("create");
+        assert_eq!(
+            MetricsTable::read(&path).expect("header").columns(),
+            columns
+        );
         sink.record(&[("env_steps", Some(2048.0)), ("return_mean", None)])
             .expect("row");
+        assert!(sink.record(&[("return_mean", None)]).is_err());
         drop(sink);
-        let mut sink = CsvMetrics::append(&path).expect("append");
+        let mut sink = CsvMetrics::append(&path, &columns).expect("append");
         sink.record(&[("env_steps", Some(4096.0)), ("return_mean", Some(-0.25))])
             .expect("row");
         let table = MetricsTable::read(&path).expect("read");

@@ -93,18 +93,23 @@ impl Recommender {
             .map_or_else(|p| Arc::clone(p.get_ref()), |w| Arc::clone(&w))
     }
 
-    /// Applies `swap` to a copy of the weights in use and puts the copy in their place when
-    /// it changed them.
-    fn swap(
-        &self,
-        swap: impl FnOnce(&mut Weights) -> Result<bool, SwapError>,
-    ) -> Result<(), String> {
-        let mut slot = self.weights.write().unwrap_or_else(|p| p.into_inner());
-        let mut next = Weights::clone(&slot);
-        if swap(&mut next).map_err(|e| e.to_string())? {
-            *slot = Arc::new(next);
+    /// Applies `swap` to a copy of the weights in use (decoding the snapshot with no lock
+    /// held, so `Recommend` calls go on meanwhile) and puts the copy in their place when it
+    /// changed them and nothing else was swapped in since.
+    fn swap(&self, swap: impl Fn(&mut Weights) -> Result<bool, SwapError>) -> Result<(), String> {
+        loop {
+            let current = self.weights();
+            let mut next = Weights::clone(&current);
+            if !swap(&mut next).map_err(|e| e.to_string())? {
+                return Ok(());
+            }
+            let mut slot = self.weights.write().unwrap_or_else(|p| p.into_inner());
+            if Arc::ptr_eq(&slot, &current) {
+                *slot = Arc::new(next);
+                return Ok(());
+            }
+            // another swap won the race: apply this one to its result
         }
-        Ok(())
     }
 
     /// The settings served.
@@ -188,6 +193,7 @@ impl Recommender {
             };
             embedding.embed_states(&batch, &mut x);
             let e = policy.head_outputs(&x);
+            // score: minus the Euclidean distance, nearest first
             let nearest = nearest.k_nearest(&e, k as usize, items);
             let scored = nearest.into_iter().map(|(a, d)| (a, -d)).collect();
             (scored, embedding.version())

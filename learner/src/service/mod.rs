@@ -29,7 +29,7 @@ use jsae_proto::{client, net};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{CsvMetrics, Learner, Summary};
+use crate::{CsvMetrics, Learner, Summary, UPDATE_COLUMNS};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
 
@@ -68,10 +68,10 @@ pub async fn serve(
         None => false,
     };
     let metrics = if resumed {
-        CsvMetrics::append(&out.metrics_csv())?
+        CsvMetrics::append(&out.metrics_csv(), &UPDATE_COLUMNS)?
     } else {
         std::fs::write(out.config_toml(), config.to_toml())?;
-        CsvMetrics::create(&out.metrics_csv())?
+        CsvMetrics::create(&out.metrics_csv(), &UPDATE_COLUMNS)?
     };
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
@@ -178,7 +178,7 @@ pub struct LearnerArgs {
 pub fn main(args: LearnerArgs) -> std::process::ExitCode {
     let config = args
         .run
-        .layered()
+        .for_service()
         .map_err(|e| e.to_string())
         .and_then(|mut c| {
             c.env_steps = args.env_steps.unwrap_or(c.env_steps);

@@ -32,6 +32,20 @@ impl RunFlags {
         c.seed = self.seed.unwrap_or(c.seed);
         Ok(c)
     }
+
+    /// As [`RunFlags::layered`], for a service process of a run: `--env` and `--seed` must
+    /// be given (as flags or environment variables) unless a settings file is (a run's
+    /// config.toml names them), so that the processes of one run cannot fall back to
+    /// different defaults unnoticed.
+    pub fn for_service(&self) -> Result<TrainConfig, ConfigError> {
+        if self.config.is_none() && (self.env.is_none() || self.seed.is_none()) {
+            return Err(ConfigError::Invalid(
+                "a service needs --env and --seed (or --config FILE with the run's settings)"
+                    .into(),
+            ));
+        }
+        self.layered()
+    }
 }
 
 /// `--listen ADDR`: where a service serves.
