@@ -348,29 +348,28 @@ impl Policy {
     }
 }
 
-/// The policy input width and head for a run.
+/// The policy input width and head for a run, as its representation answers: phi's width
+/// when it embeds states (else the raw features), a Gaussian over the action-embedding space
+/// when f decodes actions (else the action space's own head).
 pub fn policy_shape(
     config: &jsae_proto::settings::TrainConfig,
     states: &jsae_proto::StateSpace,
     actions: &ActionSpace,
 ) -> (usize, PolicyHead) {
-    match config.algo {
-        jsae_proto::settings::Algo::Jsae
-        | jsae_proto::settings::Algo::Ae
-        | jsae_proto::settings::Algo::Ra => (
-            config.embedding.state_dim,
-            PolicyHead::Gaussian {
-                dim: config.embedding.action_dim,
-            },
-        ),
-        jsae_proto::settings::Algo::Ppo => (
-            states.feature_len(),
-            match actions {
-                ActionSpace::Discrete { n } => PolicyHead::Categorical { n: *n },
-                ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
-            },
-        ),
-    }
+    let representation = config.algo.representation();
+    let input = if representation.embeds_states() {
+        config.embedding.state_dim
+    } else {
+        states.feature_len()
+    };
+    let head = match actions {
+        _ if representation.decodes_actions() => PolicyHead::Gaussian {
+            dim: config.embedding.action_dim,
+        },
+        ActionSpace::Discrete { n } => PolicyHead::Categorical { n: *n },
+        ActionSpace::Continuous { dim, .. } => PolicyHead::Gaussian { dim: *dim },
+    };
+    (input, head)
 }
 
 #[cfg(test)]
