@@ -25,6 +25,10 @@ pub enum Command {
         /// Only the transport measurements.
         #[arg(long)]
         transport: bool,
+        /// Only the PPO update: time per 2,048 samples for each policy head, achieved
+        /// GFLOP/s beside a single-thread GEMM peak measured in the same run.
+        #[arg(long)]
+        learner: bool,
         /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
         /// env, the actor with batched inference, Gymnasium).
         #[arg(long)]
@@ -190,10 +194,15 @@ pub fn run(command: Command) -> ExitCode {
         Command::Bench {
             quick,
             transport,
+            learner,
             mujoco,
             recommender,
             envs,
         } => {
+            if learner {
+                print!("{}", crate::bench::learner::run(quick));
+                return ExitCode::SUCCESS;
+            }
             if recommender {
                 print!("{}", crate::bench::recommender::run(quick));
                 return ExitCode::SUCCESS;

@@ -1,8 +1,9 @@
 //! `jsae bench`: PPO update throughput and batch-1 / batch-64 inference latency on both
 //! burn devices, measured in one run so the ratios between them are meaningful; the
-//! transport (`transport`), MuJoCo stepping (`mujoco`) and Recommender (`recommender`)
-//! benchmarks are the submodules.
+//! PPO update per head against the GEMM peak (`learner`), transport (`transport`), MuJoCo
+//! stepping (`mujoco`) and Recommender (`recommender`) benchmarks are the submodules.
 
+pub mod learner;
 pub mod mujoco;
 pub mod recommender;
 pub mod transport;
