@@ -7,12 +7,14 @@
 //! annealing) and publishes versioned policy snapshots.
 //!
 //! Layout: `policy` (Gaussian / categorical policy and critic), `gae`,
-//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `metrics`
+//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `fused` (the PPO
+//! minibatch loss and gradient on the host, checked against burn's autodiff), `metrics`
 //! (named scalars into a sink: metrics.csv), `record` (summary.json), `service` (the gRPC learner service). The settings are
 //! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
 
+pub mod fused;
 pub mod gae;
 pub mod metrics;
 pub mod normalise;

@@ -15,9 +15,9 @@ use serde::{Deserialize, Serialize};
 use crate::PpoConfig;
 use jsae_nn::ObsNorm;
 
-const LOG_STD_MIN: f32 = -5.0;
-const LOG_STD_MAX: f32 = 2.0;
-const HALF_LOG_2PI: f32 = 0.918_938_5;
+pub(crate) const LOG_STD_MIN: f32 = -5.0;
+pub(crate) const LOG_STD_MAX: f32 = 2.0;
+pub(crate) const HALF_LOG_2PI: f32 = 0.918_938_5;
 
 /// The distribution the policy outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -142,6 +142,16 @@ impl Policy {
     /// The device.
     pub fn device(&self) -> &Device {
         &self.device
+    }
+
+    /// The actor MLP, the critic MLP and the (unclamped) log-std parameter.
+    pub(crate) fn parts(&self) -> (&Mlp, &Mlp, &Param<Tensor<1>>) {
+        (&self.net.actor, &self.net.critic, &self.net.log_std)
+    }
+
+    /// Whether the Gaussian mean is tanh-bounded.
+    pub(crate) fn tanh_mean(&self) -> bool {
+        self.tanh_mean
     }
 
     /// The weights.

@@ -53,6 +53,11 @@ pub struct Mlp {
 }
 
 impl Mlp {
+    /// The linear layers, input first (burn's weights are `[in, out]`).
+    pub fn layers(&self) -> &[Linear] {
+        &self.layers
+    }
+
     /// `[batch, input] -> [batch, output]`.
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len().saturating_sub(1);

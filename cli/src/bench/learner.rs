@@ -10,8 +10,9 @@
 
 use std::time::Instant;
 
+use jsae_learner::fused::{HostMinibatch, HostPolicy, LossConfig};
 use jsae_learner::{Ingested, Learner, PolicyHead, policy_shape};
-use jsae_nn::DeviceKind;
+use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_proto::{ActionBatch, RolloutFragment};
 use ndarray::Array2;
@@ -132,6 +133,49 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize) -> LearnerBench {
     }
 }
 
+/// Microseconds of the host loss and gradient (`jsae_learner::fused`) for one minibatch of
+/// `env`/`algo`'s default shapes and minibatch size (no optimiser step).
+pub fn host_loss_grad_us(env: EnvName, algo: Algo, repeats: usize) -> f64 {
+    let config = TrainConfig::defaults(env, algo);
+    let (states, actions) = config.spaces();
+    let (input, head) = policy_shape(&config, &states, &actions);
+    let device = DeviceKind::Flex.train_device();
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let policy = jsae_learner::Policy::new(&config.ppo, input, head, &mut rng, &device);
+    let host = HostPolicy::from_policy(&policy);
+    let b = config.ppo.minibatch_size;
+    let f = fragment(input, head, 0, &mut rng);
+    let rows = b.min(FRAGMENT);
+    let x = Array2::from_shape_vec((rows, input), f.x[..rows * input].to_vec())
+        .unwrap_or_else(|_| Array2::zeros((rows, input)));
+    let (continuous, discrete) = match &f.actions {
+        ActionBatch::Continuous { dim, data } => (&data[..rows * dim], &[][..]),
+        ActionBatch::Discrete(a) => (&[][..], &a[..rows]),
+    };
+    let mb = HostMinibatch {
+        x: x.view(),
+        continuous,
+        discrete,
+        old_logp: &f.logp[..rows],
+        adv: &f.rewards[..rows],
+        returns: &f.rewards[..rows],
+        old_values: &f.logp[..rows],
+    };
+    let cfg = LossConfig {
+        clip: config.ppo.clip as f32,
+        clip_value_loss: config.ppo.clip_value_loss,
+        ent_coef: config.ppo.ent_coef as f32,
+        vf_coef: config.ppo.vf_coef as f32,
+    };
+    let mut sink = host.loss_and_grads(&mb, cfg).0.total;
+    let t = Instant::now();
+    for _ in 0..repeats.max(1) {
+        sink += host.loss_and_grads(&mb, cfg).0.total;
+    }
+    std::hint::black_box(sink);
+    t.elapsed().as_secs_f64() * 1e6 / repeats.max(1) as f64
+}
+
 /// Single-thread GEMM throughput in GFLOP/s on `n x n` matrices (matrixmultiply, through
 /// ndarray): the machine's practical limit for dense products on one core.
 pub fn gemm_peak(n: usize, repeats: usize) -> f64 {
@@ -168,13 +212,24 @@ pub fn run(quick: bool) -> String {
          (512x512 f32, one thread, this run)\n"
     );
     out.push_str(&format!(
-        "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10} {:>8} {:>8}\n",
-        "case", "input", "head", "mb", "epochs", "ms/update", "GFLOP/s", "/peak"
+        "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10} {:>8} {:>8} {:>12} {:>12}\n",
+        "case",
+        "input",
+        "head",
+        "mb",
+        "epochs",
+        "ms/update",
+        "GFLOP/s",
+        "/peak",
+        "burn us/mb",
+        "host lg us"
     ));
     for (env, algo) in CASES {
         let b = bench_case(env, algo, updates);
+        let steps = (BATCH.div_ceil(b.minibatch) * b.epochs.max(1)) as f64;
+        let host = host_loss_grad_us(env, algo, if quick { 5 } else { 200 });
         out.push_str(&format!(
-            "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10.1} {:>8.2} {:>8.3}\n",
+            "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10.1} {:>8.2} {:>8.3} {:>12.0} {:>12.0}\n",
             b.case,
             b.input,
             b.head,
@@ -182,9 +237,16 @@ pub fn run(quick: bool) -> String {
             b.epochs,
             b.update_ms,
             b.gflops,
-            b.gflops / peak
+            b.gflops / peak,
+            b.update_ms * 1e3 / steps,
+            host
         ));
     }
+    out.push_str(
+        "burn us/mb: a whole minibatch step of the update (forward, backward, clip, Adam); \
+         host lg us: the loss and every gradient on the host (jsae_learner::fused), no \
+         optimiser step yet\n",
+    );
     out
 }
 
@@ -206,5 +268,6 @@ mod tests {
             "{b:?}"
         );
         assert!(gemm_peak(64, 2) > 0.0);
+        assert!(host_loss_grad_us(EnvName::HalfCheetah, Algo::Ppo, 2) > 0.0);
     }
 }
