@@ -3,11 +3,13 @@
 //! `worker` steps a vector of environments with one batched `phi -> pi_i -> f` inference per
 //! step across them, swaps weights between rollouts and plays at random before the first
 //! embedding; `service` is the actor process: the worker fed by the embedder's and the
-//! learner's snapshot streams over gRPC, streaming transitions and fragments back. The
+//! learner's snapshot streams over gRPC, streaming transitions and fragments back, paced
+//! by `pacing` (rollouts per policy version, and a wait that adapts to the update time). The
 //! environments are `jsae-envs`, the run configuration `jsae_proto::settings`.
 
 #![forbid(unsafe_code)]
 
+pub mod pacing;
 pub mod service;
 pub mod worker;
 

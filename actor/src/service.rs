@@ -25,6 +25,7 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
 
+use crate::pacing::{Pace, Pacing};
 use crate::worker::ActorWorker;
 
 /// How an actor run ended.
@@ -147,9 +148,10 @@ fn stepping_loop(
         embedding_versions: Vec::new(),
     };
     let needs_embedder = config.algo.representation().needs_embedder();
-    // (policy version, rollouts sent under it, when that version arrived)
-    let mut pace: Option<(u64, usize, std::time::Instant)> = None;
-    let wait = Duration::from_millis(config.policy_wait_ms);
+    let mut pacing = Pacing::new(
+        config.rollouts_per_policy,
+        Duration::from_millis(config.policy_wait_ms),
+    );
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
     let random_share = config
         .embedding
@@ -208,6 +210,7 @@ fn stepping_loop(
                     let _ = links
                         .reports
                         .blocking_send(eval.to_wire(options.id, r.request_id));
+                    pacing.restart_wait(std::time::Instant::now());
                 }
             }
         }
@@ -223,23 +226,17 @@ fn stepping_loop(
             std::thread::sleep(Duration::from_millis(5));
             continue;
         }
-        // On-policy pacing: at most `rollouts_per_policy` rollouts per policy version,
-        // unless the next version is overdue.
+        // On-policy pacing (see `pacing`): random play before the first embedding is not.
         let acting = worker.embedding_version() > 0 || !needs_embedder;
-        match &mut pace {
-            _ if !acting => pace = None,
-            Some((v, sent, since)) if *v == version => {
-                if *sent >= config.rollouts_per_policy && since.elapsed() < wait {
-                    std::thread::sleep(Duration::from_millis(1));
-                    continue;
-                }
-                if *sent >= config.rollouts_per_policy {
-                    // overdue: go on, and count afresh
-                    *sent = 0;
-                    *since = std::time::Instant::now();
-                }
-            }
-            _ => pace = Some((version, 0, std::time::Instant::now())),
+        if !acting {
+            pacing.reset();
+        } else if pacing.pace(
+            (version, worker.embedding_version()),
+            std::time::Instant::now(),
+        ) == Pace::Wait
+        {
+            std::thread::sleep(Duration::from_millis(1));
+            continue;
         }
         let rollout = worker.collect(config.rollout_len);
         if needs_embedder && !rollout.transitions.is_empty() {
@@ -255,10 +252,8 @@ fn stepping_loop(
                 .blocking_send(f.into())
                 .map_err(|_| anyhow::anyhow!("the fragment queue closed"))?;
         }
-        if let Some((_, sent, _)) = &mut pace
-            && sent_fragments > 0
-        {
-            *sent += 1;
+        if acting && sent_fragments > 0 {
+            pacing.sent();
         }
         report.fragments += sent_fragments;
     }

@@ -25,10 +25,15 @@ pub enum Command {
         /// Only the transport measurements.
         #[arg(long)]
         transport: bool,
-        /// Only the PPO update: time per 2,048 samples for each policy head, achieved
-        /// GFLOP/s beside a single-thread GEMM peak measured in the same run.
+        /// Only the PPO update: time per 2,048 samples for each policy head on the old
+        /// (burn) and the new (fused) path, achieved GFLOP/s beside a GEMM peak measured in
+        /// the same run.
         #[arg(long)]
         learner: bool,
+        /// Only end-to-end HalfCheetah PPO env-steps/s with 1 and 2 actors (4 where there
+        /// are cores) sharing one batch, beside raw env stepping measured in the same run.
+        #[arg(long)]
+        scaling: bool,
         /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
         /// env, the actor with batched inference, Gymnasium).
         #[arg(long)]
@@ -195,10 +200,15 @@ pub fn run(command: Command) -> ExitCode {
             quick,
             transport,
             learner,
+            scaling,
             mujoco,
             recommender,
             envs,
         } => {
+            if scaling {
+                print!("{}", crate::bench::scaling::run(quick));
+                return ExitCode::SUCCESS;
+            }
             if learner {
                 print!("{}", crate::bench::learner::run(quick));
                 return ExitCode::SUCCESS;

@@ -8,8 +8,9 @@
 //!
 //! Layout: `policy` (Gaussian / categorical policy and critic), `gae`,
 //! `normalise` (running statistics, reward scaling), `ppo` (the learner), `fused` (the PPO
-//! minibatch loss and gradient on the host, checked against burn's autodiff), `metrics`
-//! (named scalars into a sink: metrics.csv), `record` (summary.json), `service` (the gRPC learner service). The settings are
+//! minibatch loss and gradients on the host, checked against burn's autodiff; the default
+//! update path), `metrics`
+//! (named scalars into a sink: metrics.csv), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests). The settings are
 //! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
@@ -22,8 +23,9 @@ mod policy;
 mod ppo;
 mod record;
 pub mod service;
+pub mod synthetic;
 
-pub use jsae_proto::settings::PpoConfig;
+pub use jsae_proto::settings::{PpoConfig, UpdatePath};
 pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{

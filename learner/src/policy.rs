@@ -164,6 +164,19 @@ impl Policy {
         self.net = net;
     }
 
+    /// Replaces the trainable weights with `params` (what the host update trained), keeping
+    /// each parameter's id and the observation statistics.
+    pub(crate) fn load_host(&mut self, params: &crate::fused::HostParams) {
+        self.net.actor.set_from_host(&params.actor);
+        self.net.critic.set_from_host(&params.critic);
+        let values = params.log_std.as_slice().unwrap_or(&[]);
+        self.net.log_std = self
+            .net
+            .log_std
+            .clone()
+            .map(|old| nn::replaced(old, values));
+    }
+
     /// A copy for inference on `device`.
     pub fn for_inference(&self, device: &Device) -> Self {
         Self {

@@ -1,12 +1,14 @@
 //! Model building blocks shared by the embedder and the learner: the device choice (`device`),
 //! seeded initialisation (`init`), a tanh MLP (`mlp`), input normalisation (`obs_norm`), host
 //! <-> tensor conversion and weight records as bytes (`io`), and global gradient-norm clipping
-//! (`clip`). Every model of the project is a burn module built from these.
+//! (`clip`), and training on the host without a tensor graph (`host`: MLP forward/backward, Adam,
+//! fast exp/tanh). Every model of the project is a burn module built from these.
 
 #![forbid(unsafe_code)]
 
 mod clip;
 mod device;
+pub mod host;
 mod init;
 mod io;
 mod mlp;
@@ -14,7 +16,8 @@ mod obs_norm;
 
 pub use clip::clip_global_grad_norm;
 pub use device::{BurnDevice, DeviceKind};
+pub use host::{HostAdam, HostMlp, MlpWork, clip_global_norm};
 pub use init::{linear_from_host, orthogonal, seeded_linear};
 pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};
-pub use mlp::{Mlp, MlpConfig};
+pub use mlp::{Mlp, MlpConfig, replaced};
 pub use obs_norm::ObsNorm;

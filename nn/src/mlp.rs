@@ -2,7 +2,7 @@
 
 use burn::module::Module;
 use burn::nn::{Linear, Tanh};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
@@ -58,6 +58,24 @@ impl Mlp {
         &self.layers
     }
 
+    /// Replaces the weights with `host`'s (same shapes, as [`crate::HostMlp::from_burn`]
+    /// reads them), keeping each parameter's id and whether it requires gradients.
+    pub fn set_from_host(&mut self, host: &crate::HostMlp) {
+        let layers = std::mem::take(&mut self.layers);
+        self.layers = layers
+            .into_iter()
+            .enumerate()
+            .map(|(i, layer)| Linear {
+                weight: layer
+                    .weight
+                    .map(|old| replaced(old, host.w[i].as_slice().unwrap_or(&[]))),
+                bias: layer
+                    .bias
+                    .map(|p| p.map(|old| replaced(old, host.b[i].as_slice().unwrap_or(&[])))),
+            })
+            .collect();
+    }
+
     /// `[batch, input] -> [batch, output]`.
     pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
         let last = self.layers.len().saturating_sub(1);
@@ -68,5 +86,17 @@ impl Mlp {
             }
         }
         x
+    }
+}
+
+/// A tensor of `old`'s shape, device and gradient requirement holding `values` (a parameter's
+/// new value, for `Param::map`).
+pub fn replaced<const D: usize>(old: Tensor<D>, values: &[f32]) -> Tensor<D> {
+    let fresh =
+        Tensor::<D>::from_data(TensorData::new(values.to_vec(), old.shape()), &old.device());
+    if old.is_require_grad() {
+        fresh.require_grad()
+    } else {
+        fresh
     }
 }

@@ -8,9 +8,6 @@ use crate as nn;
 use burn::module::{Module, Param};
 use burn::tensor::{Device, Tensor};
 
-const EPS: f32 = 1e-8;
-const CLIP: f32 = 10.0;
-
 /// Running statistics of the policy input.
 #[derive(Module, Debug)]
 pub struct ObsNorm {
@@ -21,6 +18,11 @@ pub struct ObsNorm {
 }
 
 impl ObsNorm {
+    /// Added to the variance before its square root.
+    pub const EPS: f32 = 1e-8;
+    /// Normalised values are clipped to `+-CLIP`.
+    pub const CLIP: f32 = 10.0;
+
     /// Identity statistics for inputs of width `dim`.
     pub fn new(dim: usize, device: &Device) -> Self {
         Self {
@@ -39,10 +41,10 @@ impl ObsNorm {
             .var
             .val()
             .detach()
-            .add_scalar(EPS)
+            .add_scalar(Self::EPS)
             .sqrt()
             .reshape([1, dim]);
-        ((x - mean) / std).clamp(-CLIP, CLIP)
+        ((x - mean) / std).clamp(-Self::CLIP, Self::CLIP)
     }
 
     /// Current mean and variance.

@@ -1,7 +1,8 @@
 //! `jsae bench --learner`: the PPO update's time per 2,048-sample batch for each policy head
-//! we train (the shapes of each environment's defaults), its achieved GFLOP/s, and a
-//! single-thread GEMM peak measured on the same machine in the same run, so the ratio to the
-//! machine's limit is read from one run.
+//! we train (the shapes of each environment's defaults) on the old path (burn's autodiff)
+//! and the new one (the fused host update, `ppo.update = "fused"`), the new path's achieved
+//! GFLOP/s, and a single-thread GEMM peak measured on the same machine in the same run, so
+//! the speed-up and the ratio to the machine's limit are read from one run.
 //!
 //! The batches are synthetic (random inputs, actions drawn from the head's space, random
 //! rewards): the update's cost depends only on the shapes, not on the data. FLOPs are those of
@@ -10,11 +11,10 @@
 
 use std::time::Instant;
 
-use jsae_learner::fused::{HostMinibatch, HostPolicy, LossConfig};
-use jsae_learner::{Ingested, Learner, PolicyHead, policy_shape};
-use jsae_nn::{BurnDevice, DeviceKind};
+use jsae_learner::{Ingested, Learner, PolicyHead, UpdatePath, policy_shape};
+use jsae_nn::DeviceKind;
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
-use jsae_proto::{ActionBatch, RolloutFragment};
+use jsae_proto::RolloutFragment;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -58,57 +58,29 @@ fn head_outputs(head: PolicyHead) -> (usize, String) {
     }
 }
 
-/// A fragment of random data for a policy of input `x_dim` and `head`.
-fn fragment(x_dim: usize, head: PolicyHead, version: u64, rng: &mut ChaCha8Rng) -> RolloutFragment {
-    let actions = match head {
-        PolicyHead::Gaussian { dim } => ActionBatch::Continuous {
-            dim,
-            data: (0..FRAGMENT * dim)
-                .map(|_| rng.random_range(-1.0..1.0))
-                .collect(),
-        },
-        PolicyHead::Categorical { n } => ActionBatch::Discrete(
-            (0..FRAGMENT)
-                .map(|_| rng.random_range(0..n as u32))
-                .collect(),
-        ),
-    };
-    RolloutFragment {
-        actor_id: 0,
-        env_index: 0,
-        policy_version: version,
-        embedding_version: 0,
-        actor_env_steps: 0,
-        x_dim,
-        x: (0..FRAGMENT * x_dim)
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect(),
-        actions,
-        logp: (0..FRAGMENT)
-            .map(|_| rng.random_range(-3.0..-1.0))
-            .collect(),
-        rewards: (0..FRAGMENT).map(|_| rng.random_range(-1.0..1.0)).collect(),
-        terminated: vec![false; FRAGMENT],
-        truncated: vec![false; FRAGMENT],
-        truncated_next_x: Vec::new(),
-        last_next_x: (0..x_dim).map(|_| rng.random_range(-1.0..1.0)).collect(),
-        episodes: Vec::new(),
-    }
-}
-
-/// Times `updates` PPO updates of 2,048 synthetic samples under `env`/`algo`'s defaults.
-pub fn bench_case(env: EnvName, algo: Algo, updates: usize) -> LearnerBench {
+/// Times `updates` PPO updates of 2,048 synthetic samples under `env`/`algo`'s defaults on
+/// the given update path.
+pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) -> LearnerBench {
     let config = TrainConfig::defaults(env, algo);
     let (states, actions) = config.spaces();
     let (input, head) = policy_shape(&config, &states, &actions);
     let mut ppo = config.ppo.clone();
     ppo.batch_steps = BATCH;
+    ppo.update = path;
     let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (mut elapsed, mut epochs) = (0.0, 0);
     for _ in 0..updates.max(1) {
         let batch: Vec<RolloutFragment> = (0..BATCH / FRAGMENT)
-            .map(|_| fragment(input, head, learner.version(), &mut rng))
+            .map(|_| {
+                jsae_learner::synthetic::fragment(
+                    input,
+                    head,
+                    learner.version(),
+                    FRAGMENT,
+                    &mut rng,
+                )
+            })
             .collect();
         let t = Instant::now();
         for f in batch {
@@ -131,49 +103,6 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize) -> LearnerBench {
         update_ms: elapsed * 1e3 / n as f64,
         gflops: flops / elapsed / 1e9,
     }
-}
-
-/// Microseconds of the host loss and gradient (`jsae_learner::fused`) for one minibatch of
-/// `env`/`algo`'s default shapes and minibatch size (no optimiser step).
-pub fn host_loss_grad_us(env: EnvName, algo: Algo, repeats: usize) -> f64 {
-    let config = TrainConfig::defaults(env, algo);
-    let (states, actions) = config.spaces();
-    let (input, head) = policy_shape(&config, &states, &actions);
-    let device = DeviceKind::Flex.train_device();
-    let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let policy = jsae_learner::Policy::new(&config.ppo, input, head, &mut rng, &device);
-    let host = HostPolicy::from_policy(&policy);
-    let b = config.ppo.minibatch_size;
-    let f = fragment(input, head, 0, &mut rng);
-    let rows = b.min(FRAGMENT);
-    let x = Array2::from_shape_vec((rows, input), f.x[..rows * input].to_vec())
-        .unwrap_or_else(|_| Array2::zeros((rows, input)));
-    let (continuous, discrete) = match &f.actions {
-        ActionBatch::Continuous { dim, data } => (&data[..rows * dim], &[][..]),
-        ActionBatch::Discrete(a) => (&[][..], &a[..rows]),
-    };
-    let mb = HostMinibatch {
-        x: x.view(),
-        continuous,
-        discrete,
-        old_logp: &f.logp[..rows],
-        adv: &f.rewards[..rows],
-        returns: &f.rewards[..rows],
-        old_values: &f.logp[..rows],
-    };
-    let cfg = LossConfig {
-        clip: config.ppo.clip as f32,
-        clip_value_loss: config.ppo.clip_value_loss,
-        ent_coef: config.ppo.ent_coef as f32,
-        vf_coef: config.ppo.vf_coef as f32,
-    };
-    let mut sink = host.loss_and_grads(&mb, cfg).0.total;
-    let t = Instant::now();
-    for _ in 0..repeats.max(1) {
-        sink += host.loss_and_grads(&mb, cfg).0.total;
-    }
-    std::hint::black_box(sink);
-    t.elapsed().as_secs_f64() * 1e6 / repeats.max(1) as f64
 }
 
 /// Single-thread GEMM throughput in GFLOP/s on `n x n` matrices (matrixmultiply, through
@@ -203,49 +132,58 @@ pub const CASES: [(EnvName, Algo); 7] = [
     (EnvName::Recommender, Algo::Jsae),
 ];
 
-/// Runs every case and formats the table.
+/// Runs every case on both update paths and formats the table.
 pub fn run(quick: bool) -> String {
     let updates = if quick { 1 } else { 3 };
     let peak = gemm_peak(512, if quick { 4 } else { 40 });
+    // the fused update runs two halves (actor, critic) side by side, its GEMMs on one thread
+    let threads = std::thread::available_parallelism()
+        .map_or(1, usize::from)
+        .min(2);
+    let limit = peak * threads as f64;
     let mut out = format!(
-        "PPO update, {BATCH} samples, burn (flex), one process; GEMM peak {peak:.1} GFLOP/s \
-         (512x512 f32, one thread, this run)\n"
+        "PPO update, {BATCH} samples, one process; old: burn autodiff (flex), new: fused host \
+         update (actor and critic halves on rayon's {threads} threads); GEMM peak {peak:.1} \
+         GFLOP/s (512x512 f32, one thread, this run), limit {limit:.1} ({threads} threads)\n"
     );
     out.push_str(&format!(
-        "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10} {:>8} {:>8} {:>12} {:>12}\n",
+        "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9} {:>9} {:>8} {:>8} {:>6} {:>8}\n",
         "case",
         "input",
         "head",
         "mb",
         "epochs",
-        "ms/update",
+        "old ms",
+        "new ms",
+        "speedup",
         "GFLOP/s",
-        "/peak",
-        "burn us/mb",
-        "host lg us"
+        "/limit",
+        "us/mb"
     ));
     for (env, algo) in CASES {
-        let b = bench_case(env, algo, updates);
-        let steps = (BATCH.div_ceil(b.minibatch) * b.epochs.max(1)) as f64;
-        let host = host_loss_grad_us(env, algo, if quick { 5 } else { 200 });
+        let old = bench_case(env, algo, updates, UpdatePath::Burn);
+        let new = bench_case(env, algo, updates, UpdatePath::Fused);
+        let steps = (BATCH.div_ceil(new.minibatch) * new.epochs.max(1)) as f64;
         out.push_str(&format!(
-            "{:<26} {:>6} {:>17} {:>5} {:>6} {:>10.1} {:>8.2} {:>8.3} {:>12.0} {:>12.0}\n",
-            b.case,
-            b.input,
-            b.head,
-            b.minibatch,
-            b.epochs,
-            b.update_ms,
-            b.gflops,
-            b.gflops / peak,
-            b.update_ms * 1e3 / steps,
-            host
+            "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9.1} {:>9.1} {:>7.1}x {:>8.2} {:>6.3} {:>8.0}\n",
+            new.case,
+            new.input,
+            new.head,
+            new.minibatch,
+            format!("{}/{}", old.epochs, new.epochs),
+            old.update_ms,
+            new.update_ms,
+            old.update_ms / new.update_ms,
+            new.gflops,
+            new.gflops / limit,
+            new.update_ms * 1e3 / steps,
         ));
     }
     out.push_str(
-        "burn us/mb: a whole minibatch step of the update (forward, backward, clip, Adam); \
-         host lg us: the loss and every gradient on the host (jsae_learner::fused), no \
-         optimiser step yet\n",
+        "ms: one whole update (GAE, every minibatch step: forward, backward, clip, Adam); \
+         epochs: old/new (the KL stop may end one early); GFLOP/s and /limit: the new path's \
+         dense products, and their share of the GEMM peak times the threads; us/mb: the new \
+         path per minibatch step\n",
     );
     out
 }
@@ -261,13 +199,14 @@ mod tests {
     }
 
     #[test]
-    fn a_quick_case_runs_its_epochs_and_reports_a_rate() {
-        let b = bench_case(EnvName::GridworldDiscrete, Algo::Jsae, 1);
-        assert!(
-            b.epochs >= 1 && b.update_ms > 0.0 && b.gflops > 0.0,
-            "{b:?}"
-        );
+    fn a_quick_case_runs_its_epochs_on_both_paths_and_reports_a_rate() {
+        for path in [UpdatePath::Burn, UpdatePath::Fused] {
+            let b = bench_case(EnvName::GridworldDiscrete, Algo::Jsae, 1, path);
+            assert!(
+                b.epochs >= 1 && b.update_ms > 0.0 && b.gflops > 0.0,
+                "{path:?}: {b:?}"
+            );
+        }
         assert!(gemm_peak(64, 2) > 0.0);
-        assert!(host_loss_grad_us(EnvName::HalfCheetah, Algo::Ppo, 2) > 0.0);
     }
 }

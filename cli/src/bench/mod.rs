@@ -1,11 +1,13 @@
 //! `jsae bench`: PPO update throughput and batch-1 / batch-64 inference latency on both
 //! burn devices, measured in one run so the ratios between them are meaningful; the
 //! PPO update per head against the GEMM peak (`learner`), transport (`transport`), MuJoCo
-//! stepping (`mujoco`) and Recommender (`recommender`) benchmarks are the submodules.
+//! stepping (`mujoco`), Recommender (`recommender`) and end-to-end actor scaling
+//! (`scaling`) benchmarks are the submodules.
 
 pub mod learner;
 pub mod mujoco;
 pub mod recommender;
+pub mod scaling;
 pub mod transport;
 
 use std::time::Instant;
@@ -129,6 +131,8 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
     let (input, head) = policy_shape(&config, w1.state_space(), w1.action_space());
     let mut ppo = config.ppo.clone();
     ppo.batch_steps = batch;
+    // the device comparison is burn's: the fused update runs on the host whatever the device
+    ppo.update = jsae_proto::settings::UpdatePath::Burn;
     let mut learner = Learner::new(ppo.clone(), input, head, 10 * batch as u64, 1, device);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let mut w = w64;

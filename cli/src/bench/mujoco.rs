@@ -59,7 +59,8 @@ fn raw_rate(robot: Robot, steps: usize) -> f64 {
     steps as f64 / t.elapsed().as_secs_f64()
 }
 
-fn env_rate(robot: Robot, steps: usize) -> f64 {
+/// Our environment's random-action step rate on one thread (steps per second).
+pub(crate) fn env_rate(robot: Robot, steps: usize) -> f64 {
     let mut env = MujocoEnv::new(robot, &MujocoConfig::default());
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let nu = env.state_sizes().1.min(match env.action_space() {

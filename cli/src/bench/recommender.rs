@@ -1,7 +1,9 @@
-//! `jsae bench --recommender`: `Recommend` latency (p50, p99) and throughput at concurrency
-//! 64 over loopback gRPC, for the JSAE and PPO policies over the Instacart catalogue (835
-//! items, k = 10), next to the same call in-process on one thread. The weights are freshly
-//! initialised: a trained policy does the same arithmetic.
+//! `jsae bench --recommender`: `Recommend` latency (p50, p99) over loopback gRPC at a fixed
+//! offered load (5,000 requests/s, open loop: each request leaves at its scheduled time
+//! whether or not earlier ones were answered, and its latency counts from that time), and
+//! latency and throughput at saturation (concurrency 64), for the JSAE and PPO policies over
+//! the Instacart catalogue (835 items, k = 10), next to the same call in-process on one
+//! thread. The weights are freshly initialised: a trained policy does the same arithmetic.
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -17,8 +19,10 @@ use rand_chacha::ChaCha8Rng;
 
 use jsae_recommender::{Recommender, WeightSources, serve};
 
-/// Requests in flight at once.
+/// Requests in flight at once (saturation).
 pub const CONCURRENCY: usize = 64;
+/// Offered load of the fixed-rate measurement, requests per second.
+pub const OFFERED_PER_S: f64 = 5_000.0;
 /// Items asked for.
 const K: u32 = 10;
 
@@ -37,6 +41,9 @@ pub struct RecommendRates {
     pub grpc_per_s: f64,
     /// Calls per second of `Recommender::recommend` in-process, one thread.
     pub in_process_per_s: f64,
+    /// At the fixed offered load: requests sent, answered, median and 99th percentile
+    /// latency (milliseconds).
+    pub fixed: (usize, usize, f64, f64),
 }
 
 fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>)> {
@@ -122,6 +129,7 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
         .worker_threads(2)
         .enable_all()
         .build()?;
+    let fixed = fixed_load(&client_rt, &url, &histories, seconds.min(5.0));
     let result = client_rt.block_on(async {
         let channel = tonic::transport::Endpoint::from_shared(url)?
             .tcp_nodelay(true)
@@ -162,6 +170,8 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
     });
     let _ = stop_tx.send(());
     let _ = server_rt.block_on(server);
+    let (sent, answered, mut fixed) = fixed?;
+    fixed.sort_by(f64::total_cmp);
     let mut latencies = result?;
     latencies.sort_by(f64::total_cmp);
     Ok(RecommendRates {
@@ -171,7 +181,68 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
         p99_ms: percentile(&latencies, 0.99),
         grpc_per_s: latencies.len() as f64 / seconds,
         in_process_per_s,
+        fixed: (
+            sent,
+            answered,
+            percentile(&fixed, 0.50),
+            percentile(&fixed, 0.99),
+        ),
     })
+}
+
+/// Open-loop load at [`OFFERED_PER_S`] for `seconds` (after half a second of the same
+/// load as warm-up): a pacing thread releases each request at its scheduled time (sleeping
+/// in between), the runtime sends it on one shared HTTP/2 channel; the latency of each
+/// request counts from its scheduled time, and one that fails or is not answered within 5 s
+/// of the last release counts as infinitely late. Returns (sent, answered, latencies in ms).
+fn fixed_load(
+    rt: &tokio::runtime::Runtime,
+    url: &str,
+    histories: &Arc<Vec<Vec<String>>>,
+    seconds: f64,
+) -> anyhow::Result<(usize, usize, Vec<f64>)> {
+    let channel = rt.block_on(
+        tonic::transport::Endpoint::from_shared(url.to_owned())?
+            .tcp_nodelay(true)
+            .connect(),
+    )?;
+    let interval = Duration::from_secs_f64(1.0 / OFFERED_PER_S);
+    let warm = (OFFERED_PER_S * 0.5) as usize;
+    let total = warm + (OFFERED_PER_S * seconds) as usize;
+    let start = Instant::now() + Duration::from_millis(10);
+    let mut calls = Vec::with_capacity(total);
+    for i in 0..total {
+        let due = start + interval.mul_f64(i as f64);
+        let now = Instant::now();
+        if due > now {
+            std::thread::sleep(due - now);
+        }
+        let mut client = pb::recommender_client::RecommenderClient::new(channel.clone());
+        let request = pb::RecommendRequest {
+            history: histories[i % histories.len()].clone(),
+            k: K,
+        };
+        calls.push(rt.spawn(async move {
+            let answered = client.recommend(request).await.is_ok();
+            answered.then(|| due.elapsed().as_secs_f64() * 1000.0)
+        }));
+    }
+    let measured = calls.split_off(warm);
+    let latencies = rt.block_on(async {
+        let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
+        let mut all = Vec::with_capacity(measured.len());
+        for call in measured {
+            let latency = tokio::time::timeout_at(deadline, call).await;
+            all.push(latency.ok().and_then(Result::ok).flatten());
+        }
+        all
+    });
+    let answered = latencies.iter().filter(|l| l.is_some()).count();
+    let latencies = latencies
+        .into_iter()
+        .map(|l| l.unwrap_or(f64::INFINITY))
+        .collect();
+    Ok((total - warm, answered, latencies))
 }
 
 fn rss_mib() -> f64 {
@@ -242,6 +313,11 @@ pub fn run(quick: bool) -> String {
             Err(e) => out.push_str(&format!("{items} items: failed: {e:#}\n")),
         }
     }
+    let mut fixed = format!(
+        "Recommend over loopback gRPC at a fixed offered load of {OFFERED_PER_S:.0} requests/s \
+         (open loop), k = {K}, Instacart catalogue (835 items)\n{:<6} {:>9} {:>9} {:>9} {:>9}\n",
+        "algo", "sent", "answered", "p50 ms", "p99 ms"
+    );
     out.push_str(&format!(
         "Recommend over loopback gRPC, {CONCURRENCY} requests in flight, k = {K}, Instacart \
          catalogue (835 items), {seconds} s per policy\n{:<6} {:>9} {:>9} {:>9} {:>12} {:>15} {:>12}\n",
@@ -249,18 +325,26 @@ pub fn run(quick: bool) -> String {
     ));
     for algo in [Algo::Jsae, Algo::Ppo] {
         match measure(algo, seconds) {
-            Ok(r) => out.push_str(&format!(
-                "{:<6} {:>9} {:>9.3} {:>9.3} {:>12.0} {:>15.0} {:>12.2}\n",
-                r.algo.as_str(),
-                r.requests,
-                r.p50_ms,
-                r.p99_ms,
-                r.grpc_per_s,
-                r.in_process_per_s,
-                r.grpc_per_s / r.in_process_per_s
-            )),
+            Ok(r) => {
+                out.push_str(&format!(
+                    "{:<6} {:>9} {:>9.3} {:>9.3} {:>12.0} {:>15.0} {:>12.2}\n",
+                    r.algo.as_str(),
+                    r.requests,
+                    r.p50_ms,
+                    r.p99_ms,
+                    r.grpc_per_s,
+                    r.in_process_per_s,
+                    r.grpc_per_s / r.in_process_per_s
+                ));
+                let (sent, answered, p50, p99) = r.fixed;
+                fixed.push_str(&format!(
+                    "{:<6} {sent:>9} {answered:>9} {p50:>9.3} {p99:>9.3}\n",
+                    r.algo.as_str()
+                ));
+            }
             Err(e) => out.push_str(&format!("{}: failed: {e:#}\n", algo.as_str())),
         }
     }
+    out.push_str(&fixed);
     out
 }

@@ -1,12 +1,14 @@
 //! A complete batch of fragments flattened for minibatching: advantages by GAE (terminated
-//! and truncated kept apart), returns, old values and log-probabilities; and the tensors of
-//! one minibatch.
+//! and truncated kept apart), returns, old values and log-probabilities; and one minibatch,
+//! as tensors (the burn update) or in reused host buffers (the fused update).
 
 use burn::tensor::{Device, Tensor};
 use jsae_nn as nn;
 use jsae_proto::{ActionBatch, RolloutFragment};
+use ndarray::Array2;
 
 use crate::PpoConfig;
+use crate::fused::{HostMinibatch, HostPolicy};
 use crate::gae::{GaeStep, gae};
 use crate::normalise::RewardScaler;
 use crate::policy::Policy;
@@ -47,9 +49,8 @@ impl Batch {
             all_x.extend_from_slice(&f.truncated_next_x);
             all_x.extend_from_slice(&f.last_next_x);
         }
-        let rows = all_x.len() / x_dim.max(1);
-        let critic = policy.for_inference(&policy.device().clone().inner());
-        let values = nn::to_vec(critic.value(nn::tensor2(all_x, rows, x_dim, critic.device())));
+        let inputs = network_input(all_x, x_dim, obs_stats(policy).as_ref());
+        let values = HostPolicy::from_policy(policy).values(inputs.view());
 
         let mut out = Batch {
             x_dim,
@@ -152,11 +153,8 @@ impl Batch {
             actions.push_row_of(&self.actions, r);
         }
         let mut adv = pick(&self.adv);
-        if norm_adv && adv.len() > 1 {
-            let n = adv.len() as f32;
-            let mean = adv.iter().sum::<f32>() / n;
-            let std = (adv.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / (n - 1.0)).sqrt();
-            adv.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
+        if norm_adv {
+            normalise_advantages(&mut adv);
         }
         Minibatch {
             x: nn::tensor2(x, rows.len(), d, device),
@@ -165,6 +163,109 @@ impl Batch {
             adv: nn::tensor1(adv, device),
             returns: nn::tensor1(pick(&self.returns), device),
             old_values: nn::tensor1(pick(&self.values), device),
+        }
+    }
+}
+
+/// Per-minibatch advantage normalisation: zero mean, unit (sample) standard deviation.
+fn normalise_advantages(adv: &mut [f32]) {
+    if adv.len() < 2 {
+        return;
+    }
+    let n = adv.len() as f32;
+    let mean = adv.iter().sum::<f32>() / n;
+    let std = (adv.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / (n - 1.0)).sqrt();
+    adv.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
+}
+
+/// Rows of `x` (`[rows, d]` row-major) as the network sees them: normalised by `stats`
+/// (mean, variance) as `jsae_nn::ObsNorm::apply` does, or as they are.
+fn network_input(x: Vec<f32>, d: usize, stats: Option<&(Vec<f32>, Vec<f32>)>) -> Array2<f32> {
+    let rows = x.len() / d.max(1);
+    let mut x = Array2::from_shape_vec((rows, d), x).unwrap_or_else(|_| Array2::zeros((rows, d)));
+    if let Some((mean, var)) = stats {
+        let clip = jsae_nn::ObsNorm::CLIP;
+        let std: Vec<f32> = var
+            .iter()
+            .map(|v| (v + jsae_nn::ObsNorm::EPS).sqrt())
+            .collect();
+        for mut row in x.rows_mut() {
+            for ((v, m), s) in row.iter_mut().zip(mean).zip(&std) {
+                *v = ((*v - m) / s).clamp(-clip, clip);
+            }
+        }
+    }
+    x
+}
+
+/// The policy's observation statistics (mean, variance), if it normalises.
+fn obs_stats(policy: &Policy) -> Option<(Vec<f32>, Vec<f32>)> {
+    policy.obs_stats().map(|(mean, var, _)| (mean, var))
+}
+
+impl Batch {
+    /// Every row of `x` as the network sees it (see [`network_input`]).
+    pub(super) fn network_input(&self, policy: &Policy) -> Array2<f32> {
+        network_input(self.x.clone(), self.x_dim, obs_stats(policy).as_ref())
+    }
+}
+
+/// One minibatch's rows in buffers reused between minibatches (the fused update).
+#[derive(Debug, Default)]
+pub(super) struct HostRows {
+    x: Array2<f32>,
+    continuous: Vec<f32>,
+    discrete: Vec<u32>,
+    old_logp: Vec<f32>,
+    adv: Vec<f32>,
+    returns: Vec<f32>,
+    old_values: Vec<f32>,
+}
+
+impl HostRows {
+    /// Gathers `rows` of `batch`, with `x` the batch's [`Batch::network_input`].
+    pub(super) fn fill(&mut self, batch: &Batch, x: &Array2<f32>, rows: &[usize], norm_adv: bool) {
+        let d = batch.x_dim;
+        if self.x.dim() != (rows.len(), d) {
+            self.x = Array2::zeros((rows.len(), d));
+        }
+        for (mut dst, &r) in self.x.rows_mut().into_iter().zip(rows) {
+            dst.assign(&x.row(r));
+        }
+        self.continuous.clear();
+        self.discrete.clear();
+        match &batch.actions {
+            ActionBatch::Continuous { dim, data } => {
+                for &r in rows {
+                    self.continuous
+                        .extend_from_slice(&data[r * dim..(r + 1) * dim]);
+                }
+            }
+            ActionBatch::Discrete(a) => self.discrete.extend(rows.iter().map(|&r| a[r])),
+        }
+        let pick = |dst: &mut Vec<f32>, src: &[f32]| {
+            dst.clear();
+            dst.extend(rows.iter().map(|&r| src[r]));
+        };
+        pick(&mut self.old_logp, &batch.logp);
+        pick(&mut self.adv, &batch.adv);
+        pick(&mut self.returns, &batch.returns);
+        pick(&mut self.old_values, &batch.values);
+        if norm_adv {
+            normalise_advantages(&mut self.adv);
+        }
+    }
+
+    /// The rows as the fused loss reads them.
+    pub(super) fn view(&self) -> HostMinibatch<'_> {
+        HostMinibatch {
+            x: self.x.view(),
+            continuous: &self.continuous,
+            discrete: &self.discrete,
+            old_logp: &self.old_logp,
+            adv: &self.adv,
+            returns: &self.returns,
+            old_values: &self.old_values,
         }
     }
 }

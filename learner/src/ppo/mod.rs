@@ -9,11 +9,15 @@
 //! too. Every drop is counted in the metrics.
 //!
 //! Layout: the learner and its buffer with the staleness rules (here), `batch` (fragments to
-//! a flat batch with GAE, and minibatches), `update` (the PPO update), `report` (what
-//! ingesting and updating report).
+//! a flat batch with GAE, and minibatches), `update` (the PPO update and its burn path),
+//! `fused_update` (its host path, the default), `report` (what ingesting and updating
+//! report).
 
 mod batch;
+mod fused_update;
 mod report;
+#[cfg(test)]
+mod tests;
 mod update;
 
 use std::collections::HashMap;
@@ -29,8 +33,12 @@ use crate::PpoConfig;
 use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
 use batch::Batch;
+use fused_update::FusedState;
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use update::clipped_surrogate_loss;
+
+/// Adam's epsilon, on both update paths.
+const ADAM_EPSILON: f32 = 1e-5;
 
 struct Adam(ModuleOptimizer);
 
@@ -47,6 +55,7 @@ pub struct Learner {
     policy: Policy,
     inference_device: Device,
     optim: Adam,
+    fused: FusedState,
     rng: ChaCha8Rng,
     version: u64,
     total_env_steps: u64,
@@ -76,7 +85,7 @@ impl Learner {
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x6c65_6172_6e65_7200);
         let policy = Policy::new(&config, input, head, &mut rng, &device.train_device());
-        let optim = AdamConfig::new().with_epsilon(1e-5).init();
+        let optim = AdamConfig::new().with_epsilon(ADAM_EPSILON).init();
         let reward_scaler = config
             .reward_scaling
             .then(|| RewardScaler::new(config.gamma, 10.0));
@@ -85,6 +94,7 @@ impl Learner {
             policy,
             inference_device: device.device(),
             optim: Adam(optim),
+            fused: FusedState::new(),
             rng,
             version: 0,
             total_env_steps,
@@ -198,6 +208,8 @@ impl Learner {
         self.policy.load_bytes(&snapshot.bytes)?;
         self.version = snapshot.version;
         self.updates = self.updates.max(snapshot.version);
+        self.optim = Adam(AdamConfig::new().with_epsilon(ADAM_EPSILON).init());
+        self.fused = FusedState::new();
         Ok(())
     }
 

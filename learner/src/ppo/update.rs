@@ -1,6 +1,10 @@
 //! One PPO update over a complete batch: epochs of shuffled minibatches, the clipped
 //! surrogate, the (optionally clipped) value loss and the entropy bonus, global grad-norm
 //! clipping, Adam, and the KL early stop; with the statistics each epoch reports.
+//!
+//! Two paths compute it: the fused one (`fused_update`, the default: host loss, gradients
+//! and Adam) and burn's autodiff graph (here; the reference the fused path is checked
+//! against, kept for `jsae bench --learner`'s old-versus-new comparison).
 
 use burn::optim::GradientsParams;
 use burn::tensor::Tensor;
@@ -10,9 +14,29 @@ use rand::seq::SliceRandom;
 use super::batch::Batch;
 use super::{Learner, UpdateMetrics};
 use crate::policy::PolicyHead;
+use jsae_proto::settings::UpdatePath;
 
 impl Learner {
     pub(super) fn optimise(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
+        let metrics = match self.config.update {
+            UpdatePath::Fused => self.optimise_fused(batch, lr),
+            UpdatePath::Burn => self.optimise_burn(batch, lr),
+        };
+        let log_std_mean = match self.policy.head() {
+            PolicyHead::Gaussian { .. } => {
+                let v = self.policy.log_std_values();
+                f64::from(v.iter().sum::<f32>()) / v.len().max(1) as f64
+            }
+            PolicyHead::Categorical { .. } => 0.0,
+        };
+        UpdateMetrics {
+            log_std_mean,
+            explained_variance: batch.explained_variance(),
+            ..metrics
+        }
+    }
+
+    fn optimise_burn(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
         let n = batch.len();
         let device = self.policy.device().clone();
         let mut order: Vec<usize> = (0..n).collect();
@@ -71,25 +95,7 @@ impl Learner {
                 break;
             }
         }
-        let log_std = match self.policy.head() {
-            PolicyHead::Gaussian { .. } => {
-                let v = self.policy.log_std_values();
-                f64::from(v.iter().sum::<f32>()) / v.len().max(1) as f64
-            }
-            PolicyHead::Categorical { .. } => 0.0,
-        };
-        UpdateMetrics {
-            policy_loss: last.mean(last.pg),
-            value_loss: last.mean(last.v),
-            entropy: last.mean(last.ent),
-            approx_kl: last.approx_kl(),
-            clip_frac: last.clip_frac(),
-            grad_norm: grad_sum / f64::from(grad_count.max(1)),
-            epochs,
-            log_std_mean: log_std,
-            explained_variance: batch.explained_variance(),
-            ..UpdateMetrics::default()
-        }
+        last.metrics(epochs, grad_sum / f64::from(grad_count.max(1)))
     }
 }
 
@@ -102,8 +108,9 @@ pub fn clipped_surrogate_loss(log_ratio: Tensor<1>, adv: Tensor<1>, clip: f32) -
     unclipped.max_pair(clipped).mean()
 }
 
+/// What one epoch's minibatches report, summed.
 #[derive(Debug, Default)]
-struct EpochStats {
+pub(super) struct EpochStats {
     pg: f64,
     v: f64,
     ent: f64,
@@ -114,7 +121,7 @@ struct EpochStats {
 }
 
 impl EpochStats {
-    fn add(&mut self, log_ratio: &[f32], clip: f32, pg: f32, v: f32, ent: f32) {
+    pub(super) fn add(&mut self, log_ratio: &[f32], clip: f32, pg: f32, v: f32, ent: f32) {
         for &lr in log_ratio {
             let r = lr.exp();
             self.kl += f64::from((r - 1.0) - lr);
@@ -133,12 +140,26 @@ impl EpochStats {
         sum / self.minibatches.max(1.0)
     }
 
-    fn approx_kl(&self) -> f64 {
+    pub(super) fn approx_kl(&self) -> f64 {
         self.kl / self.samples.max(1.0)
     }
 
     fn clip_frac(&self) -> f64 {
         self.clipped / self.samples.max(1.0)
+    }
+
+    /// The update's metrics from its last epoch.
+    pub(super) fn metrics(&self, epochs: usize, grad_norm: f64) -> UpdateMetrics {
+        UpdateMetrics {
+            policy_loss: self.mean(self.pg),
+            value_loss: self.mean(self.v),
+            entropy: self.mean(self.ent),
+            approx_kl: self.approx_kl(),
+            clip_frac: self.clip_frac(),
+            grad_norm,
+            epochs,
+            ..UpdateMetrics::default()
+        }
     }
 }
 

@@ -18,5 +18,5 @@ pub use envs::{
     SessionSource, SlotmachineConfig, SyntheticConfig, validate_env_config,
 };
 pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
-pub use ppo::PpoConfig;
+pub use ppo::{PpoConfig, UpdatePath};
 pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, Representation, TrainConfig};

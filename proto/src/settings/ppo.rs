@@ -51,6 +51,21 @@ pub struct PpoConfig {
     pub normalize_obs: bool,
     /// Fragments produced by a policy more than this many versions old are dropped.
     pub max_policy_lag: u64,
+    /// Which implementation runs the update: `fused` (host loss, gradients and Adam over
+    /// GEMMs; the default) or `burn` (burn's autodiff graph; the reference, slower).
+    pub update: UpdatePath,
+}
+
+/// Which implementation runs the PPO update; both compute the same loss, gradients and Adam
+/// step (checked against each other in the learner's tests).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum UpdatePath {
+    /// Host loss, gradients and Adam over GEMMs.
+    #[default]
+    Fused,
+    /// burn's autodiff graph and optimiser.
+    Burn,
 }
 
 impl Default for PpoConfig {
@@ -76,6 +91,7 @@ impl Default for PpoConfig {
             reward_scaling: true,
             normalize_obs: false,
             max_policy_lag: 4,
+            update: UpdatePath::Fused,
         }
     }
 }

@@ -98,12 +98,13 @@ pub struct TrainConfig {
     pub step_threads: usize,
     /// Steps per environment per rollout fragment.
     pub rollout_len: usize,
-    /// Separate processes: rollouts an actor may send under one policy version before it
-    /// waits for a newer one (1: on-policy like the one-process mode, policy lag 0 with one
-    /// actor; 2: the next rollout is collected while the learner updates, lag up to 1).
+    /// Separate processes: rollouts an actor may have out that no newer policy version has
+    /// answered yet (1: on-policy like the one-process mode, policy lag 0 with one actor; 2:
+    /// the next rollout is collected while the learner updates, lag up to 1).
     pub rollouts_per_policy: usize,
-    /// Separate processes: how long an actor waits for a newer policy before it collects
-    /// anyway (so a run goes on when another actor that the learner's batch counted on died).
+    /// Separate processes: the least time an actor waits for a newer policy before it
+    /// collects anyway (so a run goes on when another actor that the learner's batch counted
+    /// on died); the wait grows to 3 times the slowest recent arrival of a new version.
     pub policy_wait_ms: u64,
     /// burn device.
     pub device: DeviceKind,

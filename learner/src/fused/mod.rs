@@ -1,0 +1,178 @@
+//! The PPO minibatch step on the host: the loss and every parameter's gradient in one pass
+//! (`loss`), with the dense products on a GEMM kernel and the MLPs' buffers reused between
+//! minibatches ([`jsae_nn::host`]), instead of a graph of ~30 small tensor operations through
+//! burn's autodiff. Same model, same parameters: [`HostPolicy`] is read from the burn
+//! [`Policy`] and written back into it ([`Policy::load_host`]); burn's `Linear` weights are
+//! `[in, out]` and the gradients come out in the same layout.
+//!
+//! The loss is the one `ppo::update`'s burn path builds: the clipped surrogate, minus
+//! `ent_coef` times the mean entropy, plus `vf_coef` times the (optionally clipped) value
+//! loss; where burn's `max_pair` has a tie the gradient goes to the unclipped term, as
+//! burn's does. `tests` checks both against burn's autodiff.
+
+mod loss;
+#[cfg(test)]
+mod tests;
+
+use jsae_nn::{HostMlp, MlpWork};
+use ndarray::{Array1, ArrayView2};
+
+use crate::policy::{Policy, PolicyHead};
+
+/// The policy's trainable parameters on the host (and, for gradients, their layout).
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostParams {
+    /// The actor MLP.
+    pub actor: HostMlp,
+    /// The critic MLP.
+    pub critic: HostMlp,
+    /// The log-std parameter (Gaussian; one unused value for categorical), unclamped.
+    pub log_std: Array1<f32>,
+}
+
+/// The gradient of the loss for every parameter, in the parameters' layout.
+pub type HostGrads = HostParams;
+
+impl HostParams {
+    /// Zeros in this shape.
+    pub fn zeros_like(&self) -> Self {
+        Self {
+            actor: self.actor.zeros_like(),
+            critic: self.critic.zeros_like(),
+            log_std: Array1::zeros(self.log_std.len()),
+        }
+    }
+
+    /// Every parameter as a flat slice: actor layers, critic layers, log-std.
+    pub fn slices(&self) -> Vec<&[f32]> {
+        let mut out = self.actor.slices();
+        out.extend(self.critic.slices());
+        out.push(self.log_std.as_slice().unwrap_or(&[]));
+        out
+    }
+
+    /// Every parameter as a flat mutable slice, in the order of [`Self::slices`].
+    pub fn slices_mut(&mut self) -> Vec<&mut [f32]> {
+        let mut out = self.actor.slices_mut();
+        out.extend(self.critic.slices_mut());
+        out.push(self.log_std.as_slice_mut().unwrap_or(&mut []));
+        out
+    }
+}
+
+/// A policy on the host: its parameters and its head.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HostPolicy {
+    /// The trainable parameters.
+    pub params: HostParams,
+    /// The output distribution.
+    pub head: PolicyHead,
+    /// Whether the Gaussian mean is tanh-bounded.
+    pub tanh_mean: bool,
+}
+
+/// One minibatch, as `ppo::update` builds it (inputs already normalised, advantages
+/// normalised if configured).
+#[derive(Debug, Clone)]
+pub struct HostMinibatch<'a> {
+    /// Network inputs (normalised when the policy normalises), `[b, input]`.
+    pub x: ArrayView2<'a, f32>,
+    /// Gaussian actions `[b * dim]`, or empty.
+    pub continuous: &'a [f32],
+    /// Categorical actions `[b]`, or empty.
+    pub discrete: &'a [u32],
+    /// Behaviour log-probabilities.
+    pub old_logp: &'a [f32],
+    /// Advantages.
+    pub adv: &'a [f32],
+    /// Returns.
+    pub returns: &'a [f32],
+    /// Values at collection time.
+    pub old_values: &'a [f32],
+}
+
+/// The loss's settings.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LossConfig {
+    /// Surrogate (and value) clip range.
+    pub clip: f32,
+    /// Clip the value loss.
+    pub clip_value_loss: bool,
+    /// Entropy coefficient.
+    pub ent_coef: f32,
+    /// Value-loss coefficient.
+    pub vf_coef: f32,
+}
+
+/// The loss's parts, as `ppo::update` reports them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LossParts {
+    /// The whole loss.
+    pub total: f32,
+    /// Clipped surrogate.
+    pub pg: f32,
+    /// Value loss.
+    pub value: f32,
+    /// Mean entropy.
+    pub entropy: f32,
+}
+
+/// Buffers of one minibatch step, kept between minibatches: both MLPs' activations, the
+/// gradients, and `logp - old_logp` per sample.
+#[derive(Debug, Clone)]
+pub struct FusedWork {
+    actor: MlpWork,
+    critic: MlpWork,
+    grads: HostGrads,
+    log_ratio: Vec<f32>,
+}
+
+impl FusedWork {
+    /// Buffers for `policy`'s shapes.
+    pub fn new(policy: &HostPolicy) -> Self {
+        Self {
+            actor: MlpWork::default(),
+            critic: MlpWork::default(),
+            grads: policy.params.zeros_like(),
+            log_ratio: Vec::new(),
+        }
+    }
+
+    /// The gradients of the last [`HostPolicy::loss_and_grads`].
+    pub fn grads(&self) -> &HostGrads {
+        &self.grads
+    }
+
+    /// The gradients of the last [`HostPolicy::loss_and_grads`], to clip in place.
+    pub fn grads_mut(&mut self) -> &mut HostGrads {
+        &mut self.grads
+    }
+
+    /// `logp - old_logp` per sample of the last minibatch.
+    pub fn log_ratio(&self) -> &[f32] {
+        &self.log_ratio
+    }
+}
+
+impl HostPolicy {
+    /// The trainable parameters of `policy`, copied to the host.
+    pub fn from_policy(policy: &Policy) -> Self {
+        let (actor, critic, log_std) = policy.parts();
+        Self {
+            params: HostParams {
+                actor: HostMlp::from_burn(actor),
+                critic: HostMlp::from_burn(critic),
+                log_std: Array1::from(jsae_nn::to_vec(log_std.val())),
+            },
+            head: policy.head(),
+            tanh_mean: policy.tanh_mean(),
+        }
+    }
+
+    /// `V(x)` for every row of `x` (network inputs, `[rows, input]`).
+    pub fn values(&self, x: ArrayView2<'_, f32>) -> Vec<f32> {
+        let mut work = MlpWork::default();
+        self.params.critic.forward(x, &mut work);
+        work.output().iter().copied().collect()
+    }
+}

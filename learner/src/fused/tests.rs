@@ -1,0 +1,165 @@
+//! The host loss and gradient against burn's autodiff on the same weights and minibatch,
+//! for each head, with and without the tanh mean and the value clip.
+
+use super::*;
+use crate::PpoConfig;
+use crate::ppo::clipped_surrogate_loss;
+use burn::tensor::Tensor;
+use jsae_nn::{BurnDevice, DeviceKind};
+use jsae_proto::ActionBatch;
+use ndarray::Array2;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn close(a: &[f32], b: &[f32], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}");
+    let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-6);
+    for (i, (x, y)) in a.iter().zip(b).enumerate() {
+        assert!(
+            (x - y).abs() <= 1e-4 * scale + 1e-7,
+            "{what}[{i}]: host {x}, burn {y} (scale {scale})"
+        );
+    }
+}
+
+fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
+    let device = DeviceKind::Flex.train_device();
+    let mut config = PpoConfig {
+        tanh_mean,
+        clip_value_loss,
+        init_log_std: -0.3,
+        ..PpoConfig::default()
+    };
+    config.normalize_obs = false;
+    let input = 7;
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let policy = Policy::new(&config, input, head, &mut rng, &device);
+    let b = 48;
+    let x: Vec<f32> = (0..b * input)
+        .map(|_| rng.random_range(-2.0..2.0))
+        .collect();
+    let actions = match head {
+        PolicyHead::Gaussian { dim } => ActionBatch::Continuous {
+            dim,
+            data: (0..b * dim).map(|_| rng.random_range(-1.2..1.2)).collect(),
+        },
+        PolicyHead::Categorical { n } => {
+            ActionBatch::Discrete((0..b).map(|_| rng.random_range(0..n as u32)).collect())
+        }
+    };
+    // behaviour log-probs near the current ones, so some ratios are clipped and some not
+    let current = jsae_nn::to_vec(
+        policy
+            .evaluate(jsae_nn::tensor2(x.clone(), b, input, &device), &actions)
+            .logp,
+    );
+    let old_logp: Vec<f32> = current
+        .iter()
+        .map(|l| l + rng.random_range(-0.4..0.4))
+        .collect();
+    let adv: Vec<f32> = (0..b).map(|_| rng.random_range(-1.5..1.5)).collect();
+    let returns: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let old_values: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let cfg = LossConfig {
+        clip: 0.2,
+        clip_value_loss,
+        ent_coef: 0.05,
+        vf_coef: 0.5,
+    };
+
+    // burn: the loss exactly as ppo::update builds it
+    let eval = policy.evaluate(jsae_nn::tensor2(x.clone(), b, input, &device), &actions);
+    let log_ratio = eval.logp - jsae_nn::tensor1(old_logp.clone(), &device);
+    let pg = clipped_surrogate_loss(log_ratio, jsae_nn::tensor1(adv.clone(), &device), 0.2);
+    let ret = jsae_nn::tensor1(returns.clone(), &device);
+    let v_loss = if clip_value_loss {
+        let old = jsae_nn::tensor1(old_values.clone(), &device);
+        let unclipped = (eval.value.clone() - ret.clone()).square();
+        let clipped_v = old.clone() + (eval.value - old).clamp(-0.2, 0.2);
+        let clipped = (clipped_v - ret).square();
+        unclipped.max_pair(clipped).mean().mul_scalar(0.5)
+    } else {
+        (eval.value - ret).square().mean().mul_scalar(0.5)
+    };
+    let loss: Tensor<1> = pg - eval.entropy.mean().mul_scalar(0.05) + v_loss.mul_scalar(0.5);
+    let burn_loss = jsae_nn::to_vec(loss.clone())[0];
+    let grads = loss.backward();
+
+    let host = HostPolicy::from_policy(&policy);
+    let x_host = Array2::from_shape_vec((b, input), x).expect("shape");
+    let (continuous, discrete) = match &actions {
+        ActionBatch::Continuous { data, .. } => (data.as_slice(), &[][..]),
+        ActionBatch::Discrete(a) => (&[][..], a.as_slice()),
+    };
+    let mb = HostMinibatch {
+        x: x_host.view(),
+        continuous,
+        discrete,
+        old_logp: &old_logp,
+        adv: &adv,
+        returns: &returns,
+        old_values: &old_values,
+    };
+    let mut work = FusedWork::new(&host);
+    // a smaller minibatch first: the buffers are reshaped, and nothing of it is left over
+    let half = HostMinibatch {
+        x: x_host.slice_axis(ndarray::Axis(0), (0..b / 2).into()),
+        continuous: &continuous[..continuous.len() / 2],
+        discrete: &discrete[..discrete.len() / 2],
+        ..mb.clone()
+    };
+    host.loss_and_grads(&half, cfg, &mut work);
+    let parts = host.loss_and_grads(&mb, cfg, &mut work);
+    let g = work.grads();
+    let what = format!("{head:?} tanh_mean {tanh_mean} clip_value {clip_value_loss}");
+    close(&[parts.total], &[burn_loss], &format!("{what}: loss"));
+
+    let (actor, critic, log_std) = policy.parts();
+    for (name, mlp, host_grads) in [("actor", actor, &g.actor), ("critic", critic, &g.critic)] {
+        for (i, layer) in mlp.layers().iter().enumerate() {
+            let gw = layer.weight.val().grad(&grads).map(jsae_nn::to_vec);
+            let gw = gw.unwrap_or_else(|| vec![0.0; host_grads.w[i].len()]);
+            close(
+                &host_grads.w[i].iter().copied().collect::<Vec<_>>(),
+                &gw,
+                &format!("{what}: {name} weight {i}"),
+            );
+            let bias = layer.bias.as_ref().expect("biases");
+            let gb = bias.val().grad(&grads).map(jsae_nn::to_vec);
+            let gb = gb.unwrap_or_else(|| vec![0.0; host_grads.b[i].len()]);
+            close(
+                &host_grads.b[i].to_vec(),
+                &gb,
+                &format!("{what}: {name} bias {i}"),
+            );
+        }
+    }
+    if let PolicyHead::Gaussian { .. } = head {
+        let gls = log_std
+            .val()
+            .grad(&grads)
+            .map(jsae_nn::to_vec)
+            .expect("log-std gradient");
+        close(
+            g.log_std.as_slice().expect("contiguous"),
+            &gls,
+            &format!("{what}: log_std"),
+        );
+    }
+}
+
+#[test]
+fn gaussian_loss_and_gradients_equal_burn_autodiff() {
+    for tanh_mean in [true, false] {
+        for clip_value_loss in [false, true] {
+            check(PolicyHead::Gaussian { dim: 3 }, tanh_mean, clip_value_loss);
+        }
+    }
+}
+
+#[test]
+fn categorical_loss_and_gradients_equal_burn_autodiff() {
+    for clip_value_loss in [false, true] {
+        check(PolicyHead::Categorical { n: 11 }, false, clip_value_loss);
+    }
+}

@@ -1,0 +1,104 @@
+//! The PPO update on the host (the default path): the batch's inputs normalised once, each
+//! minibatch gathered into reused buffers, the loss and every gradient from
+//! [`HostPolicy::loss_and_grads`], global grad-norm clipping and Adam on the host
+//! ([`jsae_nn::host`]); the trained weights are written back into the burn policy at the end,
+//! so snapshots, inference and checkpoints read the same parameters.
+
+use jsae_nn::{HostAdam, clip_global_norm};
+use rand::seq::SliceRandom;
+
+use super::batch::{Batch, HostRows};
+use super::update::EpochStats;
+use super::{Learner, UpdateMetrics};
+use crate::fused::{FusedWork, HostPolicy, LossConfig};
+
+/// The fused path's state between updates: Adam's moments and the reused buffers.
+#[derive(Debug)]
+pub(super) struct FusedState {
+    adam: HostAdam,
+    work: Option<FusedWork>,
+    rows: HostRows,
+}
+
+impl FusedState {
+    /// Adam with the learner's epsilon (1e-5, as the burn path's).
+    pub(super) fn new() -> Self {
+        Self {
+            adam: HostAdam::new(super::ADAM_EPSILON),
+            work: None,
+            rows: HostRows::default(),
+        }
+    }
+}
+
+impl Learner {
+    pub(super) fn optimise_fused(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
+        let mut host = HostPolicy::from_policy(&self.policy);
+        let x = batch.network_input(&self.policy);
+        let (config, rng, state) = (&self.config, &mut self.rng, &mut self.fused);
+        // on one of rayon's threads, so the per-minibatch joins inside stay cheap
+        let metrics = rayon::scope(|_| {
+            let mut order: Vec<usize> = (0..batch.len()).collect();
+            epochs(config, batch, &x, lr as f32, &mut host, state, || {
+                order.shuffle(rng);
+                order.clone()
+            })
+        });
+        self.policy.load_host(&host.params);
+        metrics
+    }
+}
+
+/// The update's epochs over `batch` (network inputs `x`), each in the minibatch order
+/// `shuffled` gives, stopping early when the KL target is passed.
+fn epochs(
+    config: &crate::PpoConfig,
+    batch: &Batch,
+    x: &ndarray::Array2<f32>,
+    lr: f32,
+    host: &mut HostPolicy,
+    state: &mut FusedState,
+    mut shuffled: impl FnMut() -> Vec<usize>,
+) -> UpdateMetrics {
+    let cfg = LossConfig {
+        clip: config.clip as f32,
+        clip_value_loss: config.clip_value_loss,
+        ent_coef: config.ent_coef as f32,
+        vf_coef: config.vf_coef as f32,
+    };
+    let work = state.work.get_or_insert_with(|| FusedWork::new(host));
+    let mb = config.minibatch_size.min(batch.len()).max(1);
+    let (mut grad_sum, mut grad_count) = (0.0, 0);
+    let mut last = EpochStats::default();
+    let mut epochs = 0;
+    for _ in 0..config.epochs {
+        let order = shuffled();
+        let mut stats = EpochStats::default();
+        for rows in order.chunks(mb) {
+            state.rows.fill(batch, x, rows, config.norm_adv);
+            let parts = host.loss_and_grads(&state.rows.view(), cfg, work);
+            let norm = clip_global_norm(&mut work.grads_mut().slices_mut(), config.max_grad_norm);
+            grad_sum += f64::from(norm);
+            grad_count += 1;
+            state
+                .adam
+                .step(lr, &mut host.params.slices_mut(), &work.grads().slices());
+            stats.add(
+                work.log_ratio(),
+                cfg.clip,
+                parts.pg,
+                parts.value,
+                parts.entropy,
+            );
+        }
+        epochs += 1;
+        last = stats;
+        if config
+            .target_kl
+            .is_some_and(|target| last.approx_kl() > target)
+        {
+            break;
+        }
+    }
+    last.metrics(epochs, grad_sum / f64::from(grad_count.max(1)))
+}
