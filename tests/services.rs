@@ -106,6 +106,27 @@ async fn a_killed_actor_does_not_stop_the_run_and_a_new_one_joins() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_dead_actor_does_not_stall_the_survivor_and_nothing_is_dropped_for_lag() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "dead-actor");
+    c.actors = 2;
+    c.env_steps = 3_072; // 12 rounds of 2 x 128 steps
+    let learner = start_learner(&c, None).await;
+    let a = start_actor(&c, 1, None, &learner.url);
+    let b = start_actor(&c, 2, None, &learner.url);
+    wait_for_rows(&c.out, 2).await;
+    a.handle.abort(); // gone for good: every later round waits on it, then goes on without it
+    let rb = b.join().await.expect("actor 2");
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    assert_eq!(rb.exit, ActorExit::Finished);
+    assert!(summary.env_steps >= c.env_steps, "{summary:?}");
+    assert_eq!(summary.dropped_lag, 0, "{summary:?}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restarted_learner_is_rejoined_by_the_running_actor() {
     let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "restart-learner");
     c.env_steps = 12_288;
