@@ -4,17 +4,19 @@
 //! GFLOP/s, and a single-thread GEMM peak measured on the same machine in the same run, so
 //! the speed-up and the ratio to the machine's limit are read from one run.
 //!
-//! The batches are synthetic (random inputs, actions drawn from the head's space, random
-//! rewards): the update's cost depends only on the shapes, not on the data. FLOPs are those of
-//! the dense matrix products of the policy and critic MLPs, forward (2 per weight and sample)
-//! and backward (4), over the epochs the update ran.
+//! The batches are synthetic (random inputs, one-hot where plain PPO reads categorical
+//! states, actions drawn from the head's space, random rewards): the update's cost depends
+//! only on the shapes and on that sparsity. FLOPs are those of the matrix products of the
+//! policy and critic MLPs, forward (2 per weight and sample) and backward (4), over the epochs
+//! the update ran; a one-hot input row counts one weight row per factor (what the fused
+//! path multiplies; burn's multiplies the zeros too).
 
 use std::time::Instant;
 
 use jsae_learner::{Ingested, Learner, PolicyHead, UpdatePath, policy_shape};
 use jsae_nn::DeviceKind;
-use jsae_proto::RolloutFragment;
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_proto::{RolloutFragment, StateSpace};
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -58,6 +60,19 @@ fn head_outputs(head: PolicyHead) -> (usize, String) {
     }
 }
 
+/// Rewrites `x` (rows of `sizes.sum()` values) as one one-hot per factor.
+fn one_hot_rows(x: &mut [f32], sizes: &[usize], rng: &mut ChaCha8Rng) {
+    let width: usize = sizes.iter().sum();
+    for row in x.chunks_mut(width.max(1)) {
+        row.fill(0.0);
+        let mut offset = 0;
+        for &n in sizes {
+            row[offset + rng.random_range(0..n.max(1))] = 1.0;
+            offset += n;
+        }
+    }
+}
+
 /// Times `updates` PPO updates of 2,048 synthetic samples under `env`/`algo`'s defaults on
 /// the given update path.
 pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) -> LearnerBench {
@@ -68,18 +83,34 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
     ppo.batch_steps = BATCH;
     ppo.update = path;
     let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
+    // plain PPO on categorical states reads them one-hot, as the actors encode them
+    let one_hot = match &states {
+        StateSpace::Categorical { sizes }
+            if !config.algo.representation().embeds_states()
+                && sizes.iter().sum::<usize>() == input =>
+        {
+            Some(sizes.clone())
+        }
+        _ => None,
+    };
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (mut elapsed, mut epochs) = (0.0, 0);
     for _ in 0..updates.max(1) {
         let batch: Vec<RolloutFragment> = (0..BATCH / FRAGMENT)
             .map(|_| {
-                jsae_learner::synthetic::fragment(
+                let mut f = jsae_learner::synthetic::fragment(
                     input,
                     head,
                     learner.version(),
                     FRAGMENT,
                     &mut rng,
-                )
+                );
+                if let Some(sizes) = &one_hot {
+                    one_hot_rows(&mut f.x, sizes, &mut rng);
+                    one_hot_rows(&mut f.truncated_next_x, sizes, &mut rng);
+                    one_hot_rows(&mut f.last_next_x, sizes, &mut rng);
+                }
+                f
             })
             .collect();
         let t = Instant::now();
@@ -92,7 +123,9 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
     }
     let n = updates.max(1);
     let (outputs, head_name) = head_outputs(head);
-    let weights = mlp_weights(input, &ppo.hidden, outputs) + mlp_weights(input, &ppo.hidden, 1);
+    // the products done: a one-hot input row multiplies one weight row per factor
+    let read = one_hot.as_ref().map_or(input, Vec::len);
+    let weights = mlp_weights(read, &ppo.hidden, outputs) + mlp_weights(read, &ppo.hidden, 1);
     let flops = 6.0 * weights as f64 * BATCH as f64 * epochs as f64;
     LearnerBench {
         case: format!("{}/{}", env.as_str(), algo.as_str()),
