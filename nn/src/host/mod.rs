@@ -32,6 +32,8 @@ pub struct MlpWork {
     acts: Vec<Array2<f32>>,
     /// The loss's gradient at each layer's pre-activation output.
     delta: Vec<Array2<f32>>,
+    /// Whether the last forward pass's input took the sparse first layer.
+    sparse_input: bool,
 }
 
 /// `a` as a `rows x cols` array, reallocated only when the shape changes.
@@ -117,7 +119,10 @@ impl HostMlp {
             shaped(&mut work.delta[i], rows, cols);
             let (done, rest) = work.acts.split_at_mut(i);
             let out = &mut rest[0];
-            if i == 0 && mostly_zeros(x) {
+            if i == 0 {
+                work.sparse_input = mostly_zeros(x);
+            }
+            if i == 0 && work.sparse_input {
                 sparse_mul(x, &self.w[0], out);
             } else {
                 let input = if i == 0 { x } else { done[i - 1].view() };
@@ -145,7 +150,7 @@ impl HostMlp {
         for i in (0..self.w.len()).rev() {
             let (lower, upper) = work.delta.split_at_mut(i);
             let delta = &upper[0];
-            if i == 0 && mostly_zeros(x) {
+            if i == 0 && work.sparse_input {
                 sparse_outer(x, delta, &mut grads.w[0]);
             } else {
                 let input = if i == 0 { x } else { work.acts[i - 1].view() };
