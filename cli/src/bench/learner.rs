@@ -169,18 +169,19 @@ pub const CASES: [(EnvName, Algo); 7] = [
 pub fn run(quick: bool) -> String {
     let updates = if quick { 1 } else { 3 };
     let peak = gemm_peak(512, if quick { 4 } else { 40 });
-    // the fused update runs two halves (actor, critic) side by side, its GEMMs on one thread
+    // the fused update shares its work between rayon's threads (at most 2 counted here)
     let threads = std::thread::available_parallelism()
         .map_or(1, usize::from)
         .min(2);
     let limit = peak * threads as f64;
     let mut out = format!(
         "PPO update, {BATCH} samples, one process; old: burn autodiff (flex), new: fused host \
-         update (actor and critic halves on rayon's {threads} threads); GEMM peak {peak:.1} \
+         update on rayon's {threads} threads (actor and critic halves, wide products, softmax \
+         rows and Adam split between them); GEMM peak {peak:.1} \
          GFLOP/s (512x512 f32, one thread, this run), limit {limit:.1} ({threads} threads)\n"
     );
     out.push_str(&format!(
-        "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9} {:>9} {:>8} {:>8} {:>6} {:>8}\n",
+        "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9} {:>9} {:>8} {:>8} {:>6} {:>8} {:>7}\n",
         "case",
         "input",
         "head",
@@ -191,14 +192,15 @@ pub fn run(quick: bool) -> String {
         "speedup",
         "GFLOP/s",
         "/limit",
-        "us/mb"
+        "us/mb",
+        "bound"
     ));
     for (env, algo) in CASES {
         let old = bench_case(env, algo, updates, UpdatePath::Burn);
         let new = bench_case(env, algo, updates, UpdatePath::Fused);
         let steps = (BATCH.div_ceil(new.minibatch) * new.epochs.max(1)) as f64;
         out.push_str(&format!(
-            "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9.1} {:>9.1} {:>7.1}x {:>8.2} {:>6.3} {:>8.0}\n",
+            "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9.1} {:>9.1} {:>7.1}x {:>8.2} {:>6.3} {:>8.0} {:>6.1}x\n",
             new.case,
             new.input,
             new.head,
@@ -210,13 +212,16 @@ pub fn run(quick: bool) -> String {
             new.gflops,
             new.gflops / limit,
             new.update_ms * 1e3 / steps,
+            // the products alone at the limit take new_ms * (GFLOP/s / limit)
+            old.update_ms / (new.update_ms * new.gflops / limit),
         ));
     }
     out.push_str(
         "ms: one whole update (GAE, every minibatch step: forward, backward, clip, Adam); \
          epochs: old/new (the KL stop may end one early); GFLOP/s and /limit: the new path's \
          dense products, and their share of the GEMM peak times the threads; us/mb: the new \
-         path per minibatch step\n",
+         path per minibatch step; bound: the largest speed-up the new path's products allow \
+         (old ms over their time at the limit)\n",
     );
     out
 }

@@ -12,7 +12,7 @@ use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
 /// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r = exp(log_ratio)`,
 /// and its derivative with respect to the log-probability (a tie, or a NaN, takes the
 /// unclipped branch, as burn's `max_pair` does).
-fn surrogate(log_ratio: f32, adv: f32, clip: f32) -> (f32, f32) {
+pub(super) fn surrogate(log_ratio: f32, adv: f32, clip: f32) -> (f32, f32) {
     let r = log_ratio.exp();
     let unclipped = -adv * r;
     let clipped = -adv * r.clamp(1.0 - clip, 1.0 + clip);
@@ -138,40 +138,9 @@ impl HostPolicy {
                 }
             }
             PolicyHead::Categorical { .. } => {
-                let mut ent_sum = 0.0;
-                for (i, (o, d)) in out
-                    .chunks_exact(width)
-                    .zip(d_out.chunks_exact_mut(width))
-                    .enumerate()
-                {
-                    let max = o.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-                    // unnormalised probabilities into d first
-                    let mut z = 0.0;
-                    for (dk, &ok) in d.iter_mut().zip(o) {
-                        *dk = math::exp(ok - max);
-                        z += *dk;
-                    }
-                    let log_z = max + z.ln();
-                    let inv_z = 1.0 / z;
-                    let mut h = 0.0;
-                    for (dk, &ok) in d.iter().zip(o) {
-                        h -= dk * inv_z * (ok - log_z);
-                    }
-                    ent_sum += h;
-                    let a = mb.discrete[i] as usize;
-                    let lr = o[a] - log_z - mb.old_logp[i];
-                    work.log_ratio.push(lr);
-                    let (loss, dpg) = surrogate(lr, mb.adv[i], cfg.clip);
-                    pg += loss;
-                    let dpg = dpg / bf;
-                    // d loss / d o_k = dpg (1[k=a] - p_k) + ent_coef p_k (logp_k + h) / b
-                    let ent = cfg.ent_coef / bf;
-                    for (dk, &ok) in d.iter_mut().zip(o) {
-                        let pk = *dk * inv_z;
-                        *dk = -dpg * pk + ent * pk * (ok - log_z + h);
-                    }
-                    d[a] += dpg;
-                }
+                let (pg_sum, ent_sum) =
+                    super::categorical::rows(out, d_out, width, mb, cfg, work.log_ratio);
+                pg = pg_sum;
                 entropy = ent_sum / bf;
             }
         }

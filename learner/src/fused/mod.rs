@@ -10,12 +10,13 @@
 //! loss; where burn's `max_pair` has a tie the gradient goes to the unclipped term, as
 //! burn's does. `tests` checks both against burn's autodiff.
 
+mod categorical;
 mod loss;
 #[cfg(test)]
 mod tests;
 
-use jsae_nn::{HostMlp, MlpWork};
-use ndarray::{Array1, ArrayView2};
+use jsae_nn::{HostInput, HostMlp, MlpWork};
+use ndarray::Array1;
 
 use crate::policy::{Policy, PolicyHead};
 
@@ -76,7 +77,7 @@ pub struct HostPolicy {
 #[derive(Debug, Clone)]
 pub struct HostMinibatch<'a> {
     /// Network inputs (normalised when the policy normalises), `[b, input]`.
-    pub x: ArrayView2<'a, f32>,
+    pub x: HostInput<'a>,
     /// Gaussian actions `[b * dim]`, or empty.
     pub continuous: &'a [f32],
     /// Categorical actions `[b]`, or empty.
@@ -143,11 +144,6 @@ impl FusedWork {
         &self.grads
     }
 
-    /// The gradients of the last [`HostPolicy::loss_and_grads`], to clip in place.
-    pub fn grads_mut(&mut self) -> &mut HostGrads {
-        &mut self.grads
-    }
-
     /// `logp - old_logp` per sample of the last minibatch.
     pub fn log_ratio(&self) -> &[f32] {
         &self.log_ratio
@@ -170,7 +166,7 @@ impl HostPolicy {
     }
 
     /// `V(x)` for every row of `x` (network inputs, `[rows, input]`).
-    pub fn values(&self, x: ArrayView2<'_, f32>) -> Vec<f32> {
+    pub fn values(&self, x: HostInput<'_>) -> Vec<f32> {
         let mut work = MlpWork::default();
         self.params.critic.forward(x, &mut work);
         work.output().iter().copied().collect()

@@ -92,7 +92,7 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
         ActionBatch::Discrete(a) => (&[][..], a.as_slice()),
     };
     let mb = HostMinibatch {
-        x: x_host.view(),
+        x: HostInput::Dense(x_host.view()),
         continuous,
         discrete,
         old_logp: &old_logp,
@@ -103,7 +103,7 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
     let mut work = FusedWork::new(&host);
     // a smaller minibatch first: the buffers are reshaped, and nothing of it is left over
     let half = HostMinibatch {
-        x: x_host.slice_axis(ndarray::Axis(0), (0..b / 2).into()),
+        x: HostInput::Dense(x_host.slice_axis(ndarray::Axis(0), (0..b / 2).into())),
         continuous: &continuous[..continuous.len() / 2],
         discrete: &discrete[..discrete.len() / 2],
         ..mb.clone()
@@ -162,4 +162,7 @@ fn categorical_loss_and_gradients_equal_burn_autodiff() {
     for clip_value_loss in [false, true] {
         check(PolicyHead::Categorical { n: 11 }, false, clip_value_loss);
     }
+    // 48 x 1,500 logits: the softmax rows and the output layer's products are split
+    // between threads
+    check(PolicyHead::Categorical { n: 1500 }, false, true);
 }

@@ -4,8 +4,9 @@
 
 use burn::tensor::{Device, Tensor};
 use jsae_nn as nn;
+use jsae_nn::{HostInput, SparseRows};
 use jsae_proto::{ActionBatch, RolloutFragment};
-use ndarray::Array2;
+use ndarray::{Array2, ArrayView2};
 
 use crate::PpoConfig;
 use crate::fused::{HostMinibatch, HostPolicy};
@@ -49,8 +50,8 @@ impl Batch {
             all_x.extend_from_slice(&f.truncated_next_x);
             all_x.extend_from_slice(&f.last_next_x);
         }
-        let inputs = network_input(all_x, x_dim, obs_stats(policy).as_ref());
-        let values = HostPolicy::from_policy(policy).values(inputs.view());
+        let inputs = NetworkInput::new(&all_x, x_dim, obs_stats(policy).as_ref());
+        let values = HostPolicy::from_policy(policy).values(inputs.host());
 
         let mut out = Batch {
             x_dim,
@@ -178,24 +179,54 @@ fn normalise_advantages(adv: &mut [f32]) {
     adv.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
 }
 
-/// Rows of `x` (`[rows, d]` row-major) as the network sees them: normalised by `stats`
-/// (mean, variance) as `jsae_nn::ObsNorm::apply` does, or as they are.
-fn network_input(x: Vec<f32>, d: usize, stats: Option<&(Vec<f32>, Vec<f32>)>) -> Array2<f32> {
+/// Rows of `x` (`[rows, d]` row-major) normalised by `stats` (mean, variance) as
+/// `jsae_nn::ObsNorm::apply` does.
+fn normalised(x: &[f32], d: usize, (mean, var): &(Vec<f32>, Vec<f32>)) -> Array2<f32> {
     let rows = x.len() / d.max(1);
-    let mut x = Array2::from_shape_vec((rows, d), x).unwrap_or_else(|_| Array2::zeros((rows, d)));
-    if let Some((mean, var)) = stats {
-        let clip = jsae_nn::ObsNorm::CLIP;
-        let std: Vec<f32> = var
-            .iter()
-            .map(|v| (v + jsae_nn::ObsNorm::EPS).sqrt())
-            .collect();
-        for mut row in x.rows_mut() {
-            for ((v, m), s) in row.iter_mut().zip(mean).zip(&std) {
-                *v = ((*v - m) / s).clamp(-clip, clip);
-            }
+    let mut x = Array2::from_shape_vec((rows, d), x[..rows * d].to_vec())
+        .unwrap_or_else(|_| Array2::zeros((rows, d)));
+    let clip = jsae_nn::ObsNorm::CLIP;
+    let std: Vec<f32> = var
+        .iter()
+        .map(|v| (v + jsae_nn::ObsNorm::EPS).sqrt())
+        .collect();
+    for mut row in x.rows_mut() {
+        for ((v, m), s) in row.iter_mut().zip(mean).zip(&std) {
+            *v = ((*v - m) / s).clamp(-clip, clip);
         }
     }
     x
+}
+
+/// Network inputs: dense rows, or (one-hot states) their non-zero entries.
+#[derive(Debug)]
+pub(super) enum NetworkInput {
+    Dense(Array2<f32>),
+    Sparse(SparseRows),
+}
+
+impl NetworkInput {
+    /// Rows of `x` (`[rows, d]` row-major) as the network sees them: normalised by the
+    /// policy's statistics if it normalises, and as their non-zero entries where at most an
+    /// eighth of them are non-zero.
+    fn new(x: &[f32], d: usize, stats: Option<&(Vec<f32>, Vec<f32>)>) -> Self {
+        if let Some(stats) = stats {
+            return Self::Dense(normalised(x, d, stats));
+        }
+        let rows = x.len() / d.max(1);
+        let Ok(view) = ArrayView2::from_shape((rows, d), &x[..rows * d]) else {
+            return Self::Dense(Array2::zeros((0, d)));
+        };
+        SparseRows::from_dense(view).map_or_else(|| Self::Dense(view.to_owned()), Self::Sparse)
+    }
+
+    /// The inputs as the host MLP reads them.
+    pub(super) fn host(&self) -> HostInput<'_> {
+        match self {
+            Self::Dense(x) => HostInput::Dense(x.view()),
+            Self::Sparse(x) => HostInput::Sparse(x),
+        }
+    }
 }
 
 /// The policy's observation statistics (mean, variance), if it normalises.
@@ -204,9 +235,9 @@ fn obs_stats(policy: &Policy) -> Option<(Vec<f32>, Vec<f32>)> {
 }
 
 impl Batch {
-    /// Every row of `x` as the network sees it (see [`network_input`]).
-    pub(super) fn network_input(&self, policy: &Policy) -> Array2<f32> {
-        network_input(self.x.clone(), self.x_dim, obs_stats(policy).as_ref())
+    /// Every row of `x` as the network sees it (see [`NetworkInput::new`]).
+    pub(super) fn network_input(&self, policy: &Policy) -> NetworkInput {
+        NetworkInput::new(&self.x, self.x_dim, obs_stats(policy).as_ref())
     }
 }
 
@@ -214,6 +245,8 @@ impl Batch {
 #[derive(Debug, Default)]
 pub(super) struct HostRows {
     x: Array2<f32>,
+    sparse: SparseRows,
+    sparse_input: bool,
     continuous: Vec<f32>,
     discrete: Vec<u32>,
     old_logp: Vec<f32>,
@@ -224,13 +257,21 @@ pub(super) struct HostRows {
 
 impl HostRows {
     /// Gathers `rows` of `batch`, with `x` the batch's [`Batch::network_input`].
-    pub(super) fn fill(&mut self, batch: &Batch, x: &Array2<f32>, rows: &[usize], norm_adv: bool) {
-        let d = batch.x_dim;
-        if self.x.dim() != (rows.len(), d) {
-            self.x = Array2::zeros((rows.len(), d));
-        }
-        for (mut dst, &r) in self.x.rows_mut().into_iter().zip(rows) {
-            dst.assign(&x.row(r));
+    pub(super) fn fill(&mut self, batch: &Batch, x: &NetworkInput, rows: &[usize], norm_adv: bool) {
+        match x {
+            NetworkInput::Dense(x) => {
+                self.sparse_input = false;
+                if self.x.dim() != (rows.len(), x.ncols()) {
+                    self.x = Array2::zeros((rows.len(), x.ncols()));
+                }
+                for (mut dst, &r) in self.x.rows_mut().into_iter().zip(rows) {
+                    dst.assign(&x.row(r));
+                }
+            }
+            NetworkInput::Sparse(x) => {
+                self.sparse_input = true;
+                self.sparse.gather(x, rows);
+            }
         }
         self.continuous.clear();
         self.discrete.clear();
@@ -259,7 +300,11 @@ impl HostRows {
     /// The rows as the fused loss reads them.
     pub(super) fn view(&self) -> HostMinibatch<'_> {
         HostMinibatch {
-            x: self.x.view(),
+            x: if self.sparse_input {
+                HostInput::Sparse(&self.sparse)
+            } else {
+                HostInput::Dense(self.x.view())
+            },
             continuous: &self.continuous,
             discrete: &self.discrete,
             old_logp: &self.old_logp,

@@ -4,10 +4,10 @@
 //! ([`jsae_nn::host`]); the trained weights are written back into the burn policy at the end,
 //! so snapshots, inference and checkpoints read the same parameters.
 
-use jsae_nn::{HostAdam, clip_global_norm};
+use jsae_nn::{HostAdam, clip_scale, global_norm};
 use rand::seq::SliceRandom;
 
-use super::batch::{Batch, HostRows};
+use super::batch::{Batch, HostRows, NetworkInput};
 use super::update::EpochStats;
 use super::{Learner, UpdateMetrics};
 use crate::fused::{FusedWork, HostPolicy, LossConfig};
@@ -54,7 +54,7 @@ impl Learner {
 fn epochs(
     config: &crate::PpoConfig,
     batch: &Batch,
-    x: &ndarray::Array2<f32>,
+    x: &NetworkInput,
     lr: f32,
     host: &mut HostPolicy,
     state: &mut FusedState,
@@ -77,12 +77,14 @@ fn epochs(
         for rows in order.chunks(mb) {
             state.rows.fill(batch, x, rows, config.norm_adv);
             let parts = host.loss_and_grads(&state.rows.view(), cfg, work);
-            let norm = clip_global_norm(&mut work.grads_mut().slices_mut(), config.max_grad_norm);
+            let grads = work.grads().slices();
+            let norm = global_norm(&grads);
             grad_sum += f64::from(norm);
             grad_count += 1;
+            let scale = clip_scale(norm, config.max_grad_norm);
             state
                 .adam
-                .step(lr, &mut host.params.slices_mut(), &work.grads().slices());
+                .step(lr, scale, &mut host.params.slices_mut(), &grads);
             stats.add(
                 work.log_ratio(),
                 cfg.clip,

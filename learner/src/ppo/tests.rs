@@ -2,7 +2,7 @@
 //! path, given the same batches, must move the weights the same way.
 
 use jsae_nn::DeviceKind;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::Learner;
@@ -17,9 +17,18 @@ fn flat(learner: &Learner) -> Vec<f32> {
     host.params.slices().concat()
 }
 
-/// Two updates of 256 samples on each path (obs normalisation and value clipping on, a
-/// smaller last minibatch).
-fn compare(head: PolicyHead, tanh_mean: bool) {
+/// Rewrites `x` (rows of `width`) as one-hot rows.
+fn one_hot(x: &mut [f32], width: usize, rng: &mut ChaCha8Rng) {
+    for row in x.chunks_mut(width) {
+        row.fill(0.0);
+        row[rng.random_range(0..width)] = 1.0;
+    }
+}
+
+/// Two updates of 256 samples on each path (value clipping on, a smaller last minibatch),
+/// with obs normalisation on dense inputs, or one-hot inputs as plain PPO reads categorical
+/// states (the first layer as a row lookup).
+fn compare(head: PolicyHead, tanh_mean: bool, one_hot_inputs: bool) {
     let config = PpoConfig {
         batch_steps: 4 * STEPS,
         epochs: 2,
@@ -27,11 +36,11 @@ fn compare(head: PolicyHead, tanh_mean: bool) {
         minibatch_size: 60,
         tanh_mean,
         clip_value_loss: true,
-        normalize_obs: true,
+        normalize_obs: !one_hot_inputs,
         ent_coef: 0.01,
         ..PpoConfig::default()
     };
-    let x_dim = 5;
+    let x_dim = if one_hot_inputs { 40 } else { 5 };
     let make = |update| {
         let config = PpoConfig {
             update,
@@ -45,7 +54,12 @@ fn compare(head: PolicyHead, tanh_mean: bool) {
     let mut rng = ChaCha8Rng::seed_from_u64(9);
     for update in 0..2 {
         for _ in 0..4 {
-            let f = crate::synthetic::fragment(x_dim, head, update, STEPS, &mut rng);
+            let mut f = crate::synthetic::fragment(x_dim, head, update, STEPS, &mut rng);
+            if one_hot_inputs {
+                for x in [&mut f.x, &mut f.truncated_next_x, &mut f.last_next_x] {
+                    one_hot(x, x_dim, &mut rng);
+                }
+            }
             fused.ingest(f.clone()).expect("fused ingests");
             burn.ingest(f).expect("burn ingests");
         }
@@ -75,7 +89,13 @@ fn compare(head: PolicyHead, tanh_mean: bool) {
 
 #[test]
 fn fused_and_burn_updates_move_the_weights_alike() {
-    compare(PolicyHead::Gaussian { dim: 3 }, false);
-    compare(PolicyHead::Gaussian { dim: 3 }, true);
-    compare(PolicyHead::Categorical { n: 9 }, false);
+    compare(PolicyHead::Gaussian { dim: 3 }, false, false);
+    compare(PolicyHead::Gaussian { dim: 3 }, true, false);
+    compare(PolicyHead::Categorical { n: 9 }, false, false);
+}
+
+#[test]
+fn one_hot_inputs_and_a_wide_head_split_between_threads_move_the_weights_alike() {
+    // 60 x 1,200 logits: the softmax rows and the output layer's products are split
+    compare(PolicyHead::Categorical { n: 1200 }, false, true);
 }

@@ -3,6 +3,10 @@
 //! `f = x - k ln2`, `|f| <= ln2 / 2`, and a degree-6 Taylor polynomial for `e^f` (relative
 //! error about 2e-7); `tanh` from that
 //! `exp` (absolute error about 3e-7). Both saturate cleanly outside their ranges.
+//!
+//! Reductions (`max`, `exp_shifted`'s sum, `dot_shifted`) keep [`LANES`] partial results
+//! so that a sum over a wide row is not one serial chain of additions: the compiler cannot
+//! reorder float additions itself, so a plain `fold` runs one element per cycle.
 
 const LOG2_E: f32 = std::f32::consts::LOG2_E;
 /// ln 2 = LN2_HI + LN2_LO, the first with few enough mantissa bits that `k * LN2_HI` is exact.
@@ -37,6 +41,68 @@ pub fn tanh(x: f32) -> f32 {
     1.0 - 2.0 / (e + 1.0)
 }
 
+/// Partial results a reduction keeps (one AVX register of f32).
+const LANES: usize = 8;
+
+/// The largest of `xs` (`-inf` when empty; NaNs are passed over as `f32::max` does).
+#[inline(always)]
+pub fn max(xs: &[f32]) -> f32 {
+    let mut acc = [f32::NEG_INFINITY; LANES];
+    let chunks = xs.chunks_exact(LANES);
+    let tail = chunks.remainder();
+    for c in chunks {
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a = a.max(v);
+        }
+    }
+    let m = tail.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
+    acc.iter().fold(m, |m, &v| m.max(v))
+}
+
+/// `out[k] = e^(x[k] - shift)`; returns their sum.
+#[inline(always)]
+pub fn exp_shifted(out: &mut [f32], x: &[f32], shift: f32) -> f32 {
+    // two simple loops vectorise where one mixing them does not
+    for (o, &v) in out.iter_mut().zip(x) {
+        *o = exp(v - shift);
+    }
+    sum(out)
+}
+
+/// The sum of `xs`.
+#[inline(always)]
+pub fn sum(xs: &[f32]) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let chunks = xs.chunks_exact(LANES);
+    let tail: f32 = chunks.remainder().iter().sum();
+    for c in chunks {
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a += v;
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
+/// `sum_k a[k] (b[k] - shift)`.
+#[inline(always)]
+pub fn dot_shifted(a: &[f32], b: &[f32], shift: f32) -> f32 {
+    let mut acc = [0.0f32; LANES];
+    let ac = a.chunks_exact(LANES);
+    let bc = b.chunks_exact(LANES);
+    let tail: f32 = ac
+        .remainder()
+        .iter()
+        .zip(bc.remainder())
+        .map(|(&p, &q)| p * (q - shift))
+        .sum();
+    for (p, q) in ac.zip(bc) {
+        for ((s, &p), &q) in acc.iter_mut().zip(p).zip(q) {
+            *s += p * (q - shift);
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -58,5 +124,31 @@ mod tests {
         assert_eq!(tanh(-40.0), -1.0);
         assert!(exp(-200.0) < 1e-37);
         assert!(exp(200.0).is_finite());
+    }
+
+    #[test]
+    fn lane_reductions_equal_plain_ones() {
+        for n in [0, 3, 8, 13, 512] {
+            let x: Vec<f32> = (0..n).map(|i| ((i * 37) % 19) as f32 * 0.3 - 2.0).collect();
+            assert_eq!(max(&x), x.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v)));
+            let mut e = vec![0.0; n];
+            let sum = exp_shifted(&mut e, &x, 1.5);
+            let plain: f32 = x.iter().map(|v| (v - 1.5).exp()).sum();
+            assert!(
+                (sum - plain).abs() <= 1e-5 * plain.max(1.0),
+                "{n}: {sum} {plain}"
+            );
+            assert!(
+                e.iter()
+                    .zip(&x)
+                    .all(|(e, v)| (e - (v - 1.5).exp()).abs() < 1e-5)
+            );
+            let dot = dot_shifted(&e, &x, 0.5);
+            let plain: f32 = e.iter().zip(&x).map(|(p, q)| p * (q - 0.5)).sum();
+            assert!(
+                (dot - plain).abs() <= 1e-4 * plain.abs().max(1.0),
+                "{n}: {dot} {plain}"
+            );
+        }
     }
 }

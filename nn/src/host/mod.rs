@@ -9,11 +9,13 @@
 
 mod adam;
 pub mod math;
+mod sparse;
 
 use ndarray::linalg::general_mat_mul;
-use ndarray::{Array1, Array2, ArrayView2, Axis};
+use ndarray::{Array1, Array2, ArrayView2, ArrayViewMut2, Axis};
 
-pub use adam::{HostAdam, clip_global_norm};
+pub use adam::{HostAdam, clip_scale, global_norm};
+pub use sparse::{HostInput, SparseRows};
 
 /// An MLP's weights on the host: `w[i]` is `[in, out]` (burn's layout), `b[i]` is `[out]`;
 /// tanh between layers, none after the last.
@@ -32,8 +34,6 @@ pub struct MlpWork {
     acts: Vec<Array2<f32>>,
     /// The loss's gradient at each layer's pre-activation output.
     delta: Vec<Array2<f32>>,
-    /// Whether the last forward pass's input took the sparse first layer.
-    sparse_input: bool,
 }
 
 /// `a` as a `rows x cols` array, reallocated only when the shape changes.
@@ -108,7 +108,7 @@ impl HostMlp {
 
     /// Runs `x` (`[batch, input]`) through the layers into `work`; the output is
     /// [`MlpWork::output`].
-    pub fn forward(&self, x: ArrayView2<'_, f32>, work: &mut MlpWork) {
+    pub fn forward(&self, x: HostInput<'_>, work: &mut MlpWork) {
         let n = self.w.len();
         let rows = x.nrows();
         work.acts.resize_with(n, Default::default);
@@ -119,14 +119,10 @@ impl HostMlp {
             shaped(&mut work.delta[i], rows, cols);
             let (done, rest) = work.acts.split_at_mut(i);
             let out = &mut rest[0];
-            if i == 0 {
-                work.sparse_input = mostly_zeros(x);
-            }
-            if i == 0 && work.sparse_input {
-                sparse_mul(x, &self.w[0], out);
-            } else {
-                let input = if i == 0 { x } else { done[i - 1].view() };
-                general_mat_mul(1.0, &input, &self.w[i], 0.0, out);
+            match (i, x) {
+                (0, HostInput::Dense(x)) => mat_mul(x, self.w[0].view(), out.view_mut()),
+                (0, HostInput::Sparse(x)) => x.mul(&self.w[0], out),
+                _ => mat_mul(done[i - 1].view(), self.w[i].view(), out.view_mut()),
             }
             let bias = self.b[i].as_slice().unwrap_or(&[]);
             let data = out.as_slice_mut().unwrap_or(&mut []);
@@ -146,20 +142,19 @@ impl HostMlp {
 
     /// The gradients of every weight and bias into `grads` (same shapes as `self`), from the
     /// gradient the caller wrote at [`MlpWork::output_and_grad`] after [`Self::forward`] on `x`.
-    pub fn backward(&self, x: ArrayView2<'_, f32>, work: &mut MlpWork, grads: &mut HostMlp) {
+    pub fn backward(&self, x: HostInput<'_>, work: &mut MlpWork, grads: &mut HostMlp) {
         for i in (0..self.w.len()).rev() {
             let (lower, upper) = work.delta.split_at_mut(i);
             let delta = &upper[0];
-            if i == 0 && work.sparse_input {
-                sparse_outer(x, delta, &mut grads.w[0]);
-            } else {
-                let input = if i == 0 { x } else { work.acts[i - 1].view() };
-                general_mat_mul(1.0, &input.t(), delta, 0.0, &mut grads.w[i]);
+            match (i, x) {
+                (0, HostInput::Dense(x)) => mat_mul(x.t(), delta.view(), grads.w[0].view_mut()),
+                (0, HostInput::Sparse(x)) => x.outer(delta, &mut grads.w[0]),
+                _ => mat_mul(work.acts[i - 1].t(), delta.view(), grads.w[i].view_mut()),
             }
             grads.b[i].assign(&delta.sum_axis(Axis(0)));
             if i > 0 {
                 let below = &mut lower[i - 1];
-                general_mat_mul(1.0, delta, &self.w[i].t(), 0.0, below);
+                mat_mul(delta.view(), self.w[i].t(), below.view_mut());
                 // through the tanh of layer i-1: d tanh = 1 - tanh^2
                 below.zip_mut_with(&work.acts[i - 1], |g, &a| *g *= 1.0 - a * a);
             }
@@ -167,34 +162,45 @@ impl HostMlp {
     }
 }
 
-/// Whether at most an eighth of `x` is non-zero (one-hot inputs): the first layer then
-/// skips the zeros instead of multiplying them.
-fn mostly_zeros(x: ArrayView2<'_, f32>) -> bool {
-    let nonzero = x.iter().filter(|&&v| v != 0.0).count();
-    nonzero * 8 <= x.len()
+/// FLOPs above which a product is split in two halves run side by side (rayon's pool):
+/// the wide output layers of categorical heads (512 to 4,096 logits) would otherwise keep
+/// one core busy while the other, done with the small critic, waits.
+const SPLIT_FLOPS: usize = 4_000_000;
+
+/// `c = a b`, split along `c`'s longer side into as many parts as rayon has threads when
+/// it is large (each part packs its own copy of the shared operand, so no more).
+fn mat_mul(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, c: ArrayViewMut2<'_, f32>) {
+    split_mat_mul(a, b, c, rayon::current_num_threads());
 }
 
-/// `out = x w`, visiting only the non-zero entries of `x`.
-fn sparse_mul(x: ArrayView2<'_, f32>, w: &Array2<f32>, out: &mut Array2<f32>) {
-    out.fill(0.0);
-    for (x_row, mut out_row) in x.rows().into_iter().zip(out.rows_mut()) {
-        for (j, &v) in x_row.iter().enumerate() {
-            if v != 0.0 {
-                out_row.scaled_add(v, &w.row(j));
-            }
-        }
+fn split_mat_mul(
+    a: ArrayView2<'_, f32>,
+    b: ArrayView2<'_, f32>,
+    mut c: ArrayViewMut2<'_, f32>,
+    parts: usize,
+) {
+    let (m, k, n) = (a.nrows(), a.ncols(), b.ncols());
+    if parts < 2 || 2 * m * k * n < SPLIT_FLOPS || m.max(n) < 32 {
+        general_mat_mul(1.0, &a, &b, 0.0, &mut c);
+        return;
     }
-}
-
-/// `g = x^T delta`, visiting only the non-zero entries of `x`.
-fn sparse_outer(x: ArrayView2<'_, f32>, delta: &Array2<f32>, g: &mut Array2<f32>) {
-    g.fill(0.0);
-    for (x_row, d_row) in x.rows().into_iter().zip(delta.rows()) {
-        for (j, &v) in x_row.iter().enumerate() {
-            if v != 0.0 {
-                g.row_mut(j).scaled_add(v, &d_row);
-            }
-        }
+    let (left, right) = (parts / 2, parts - parts / 2);
+    if n >= m {
+        let at = n * left / parts;
+        let (b1, b2) = b.split_at(Axis(1), at);
+        let (c1, c2) = c.split_at(Axis(1), at);
+        rayon::join(
+            || split_mat_mul(a, b1, c1, left),
+            || split_mat_mul(a, b2, c2, right),
+        );
+    } else {
+        let at = m * left / parts;
+        let (a1, a2) = a.split_at(Axis(0), at);
+        let (c1, c2) = c.split_at(Axis(0), at);
+        rayon::join(
+            || split_mat_mul(a1, b, c1, left),
+            || split_mat_mul(a2, b, c2, right),
+        );
     }
 }
 
@@ -202,20 +208,20 @@ fn sparse_outer(x: ArrayView2<'_, f32>, delta: &Array2<f32>, g: &mut Array2<f32>
 mod tests {
     use super::*;
 
-    /// A 3-layer MLP's forward output and weight gradients, for inputs `x`.
-    fn pass(mlp: &HostMlp, x: &Array2<f32>) -> (Array2<f32>, HostMlp) {
+    /// The forward output and every gradient for input `x`.
+    fn pass(mlp: &HostMlp, x: HostInput<'_>) -> (Array2<f32>, HostMlp) {
         let mut work = MlpWork::default();
-        mlp.forward(x.view(), &mut work);
+        mlp.forward(x, &mut work);
         let out = work.output().clone();
         let (o, g) = work.output_and_grad();
         g.assign(&o.mapv(|v| v - 0.5));
         let mut grads = mlp.zeros_like();
-        mlp.backward(x.view(), &mut work, &mut grads);
+        mlp.backward(x, &mut work, &mut grads);
         (out, grads)
     }
 
     #[test]
-    fn one_hot_inputs_take_the_sparse_path_to_the_same_values() {
+    fn one_hot_inputs_as_sparse_rows_give_the_dense_pass_values() {
         let (rows, input) = (6, 40);
         let value = |i: usize, j: usize| ((i * 7 + j * 3) % 11) as f32 / 11.0 - 0.5;
         let mlp = HostMlp {
@@ -231,27 +237,11 @@ mod tests {
             x[[r, r * 5]] = 1.0;
             x[[r, 39 - r]] = 0.5;
         }
-        assert!(mostly_zeros(x.view()));
-        let (out_sparse, g_sparse) = pass(&mlp, &x);
-        // the first layer's product and gradient against the dense GEMMs
-        let mut first = Array2::zeros((rows, 5));
-        general_mat_mul(1.0, &x, &mlp.w[0], 0.0, &mut first);
-        let mut sparse_first = Array2::zeros((rows, 5));
-        sparse_mul(x.view(), &mlp.w[0], &mut sparse_first);
-        assert!((&first - &sparse_first).iter().all(|d| d.abs() < 1e-6));
-        let delta = Array2::from_shape_fn((rows, 5), |(i, j)| value(i, j + 2));
-        let mut g_dense = Array2::zeros((input, 5));
-        general_mat_mul(1.0, &x.t(), &delta, 0.0, &mut g_dense);
-        let mut g_sp = Array2::zeros((input, 5));
-        sparse_outer(x.view(), &delta, &mut g_sp);
-        assert!((&g_dense - &g_sp).iter().all(|d| d.abs() < 1e-6));
-        // and the whole pass equals the dense path's on the same values (the zeros nudged
-        // to 1e-30, which changes nothing but the path taken)
-        let nudged = x.mapv(|v| if v == 0.0 { 1e-30 } else { v });
-        assert!(!mostly_zeros(nudged.view()));
-        let (out_dense, g_dense_all) = pass(&mlp, &nudged);
+        let sparse = SparseRows::from_dense(x.view()).expect("mostly zeros");
+        let (out_sparse, g_sparse) = pass(&mlp, HostInput::Sparse(&sparse));
+        let (out_dense, g_dense) = pass(&mlp, HostInput::Dense(x.view()));
         assert!((&out_sparse - &out_dense).iter().all(|d| d.abs() < 1e-6));
-        for (a, b) in g_sparse.slices().iter().zip(g_dense_all.slices()) {
+        for (a, b) in g_sparse.slices().iter().zip(g_dense.slices()) {
             assert!(a.iter().zip(b).all(|(p, q)| (p - q).abs() < 1e-6));
         }
     }
