@@ -61,10 +61,20 @@ impl SparseRows {
         };
         out.start.push(0);
         for row in x.rows() {
-            for (j, &v) in row.iter().enumerate() {
-                if v != 0.0 {
-                    out.index.push(j as u32);
-                    out.value.push(v);
+            let row = row.to_slice()?;
+            // runs of zeros are passed over a block at a time (a vectorised test)
+            for (b, block) in row.chunks(16).enumerate() {
+                let bits = block
+                    .iter()
+                    .fold(0u32, |acc, v| acc | (v.to_bits() & 0x7fff_ffff));
+                if bits == 0 {
+                    continue;
+                }
+                for (j, &v) in block.iter().enumerate() {
+                    if v != 0.0 {
+                        out.index.push((b * 16 + j) as u32);
+                        out.value.push(v);
+                    }
                 }
             }
             if out.index.len() > limit {
