@@ -169,10 +169,8 @@ pub const CASES: [(EnvName, Algo); 7] = [
 pub fn run(quick: bool) -> String {
     let updates = if quick { 1 } else { 3 };
     let peak = gemm_peak(512, if quick { 4 } else { 40 });
-    // the fused update shares its work between rayon's threads (at most 2 counted here)
-    let threads = std::thread::available_parallelism()
-        .map_or(1, usize::from)
-        .min(2);
+    // the fused update shares its work between rayon's threads
+    let threads = rayon::current_num_threads().max(1);
     let limit = peak * threads as f64;
     let mut out = format!(
         "PPO update, {BATCH} samples, one process; old: burn autodiff (flex), new: fused host \

@@ -46,7 +46,8 @@ pub(super) fn rows(
         .enumerate()
         .collect();
     use rayon::prelude::*;
-    pieces
+    // one sum per part, added in order: the same bits whichever thread took which part
+    let sums: Vec<(f32, f32)> = pieces
         .par_iter_mut()
         .map(|(i, ((out, d_out), log_ratio))| {
             arch.dispatch(Part {
@@ -57,7 +58,9 @@ pub(super) fn rows(
                 log_ratio,
             })
         })
-        .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+        .collect();
+    sums.iter()
+        .fold((0.0, 0.0), |acc, s| (acc.0 + s.0, acc.1 + s.1))
 }
 
 /// Samples `first..` of the minibatch (as many as `log_ratio` holds).

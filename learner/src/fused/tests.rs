@@ -163,6 +163,11 @@ fn categorical_loss_and_gradients_equal_burn_autodiff() {
         check(PolicyHead::Categorical { n: 11 }, false, clip_value_loss);
     }
     // 48 x 1,500 logits: the softmax rows and the output layer's products are split
-    // between threads
+    // between threads, two or, in a pool of three, three
     check(PolicyHead::Categorical { n: 1500 }, false, true);
+    rayon::ThreadPoolBuilder::new()
+        .num_threads(3)
+        .build()
+        .expect("a pool of three")
+        .install(|| check(PolicyHead::Categorical { n: 2100 }, false, true));
 }

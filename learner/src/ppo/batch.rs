@@ -215,7 +215,7 @@ impl NetworkInput {
         }
         let rows = x.len() / d.max(1);
         let Ok(view) = ArrayView2::from_shape((rows, d), &x[..rows * d]) else {
-            return Self::Dense(Array2::zeros((0, d)));
+            return Self::Dense(Array2::zeros((rows, d)));
         };
         SparseRows::from_dense(view).map_or_else(|| Self::Dense(view.to_owned()), Self::Sparse)
     }

@@ -134,14 +134,8 @@ impl pulp::WithSimd for AdamOn<'_> {
 
     #[inline(always)]
     fn with_simd<S: pulp::Simd>(self, _: S) {
-        let AdamPiece {
-            b1,
-            b2,
-            lr,
-            factor,
-            eps,
-            grad_scale,
-        } = self.c;
+        let c = self.c;
+        let (b1, b2, lr, factor, eps) = (c.b1, c.b2, c.lr, c.factor, c.eps);
         for (((p, &g), m), v) in self
             .p
             .iter_mut()
@@ -149,7 +143,7 @@ impl pulp::WithSimd for AdamOn<'_> {
             .zip(self.m.iter_mut())
             .zip(self.v.iter_mut())
         {
-            let g = g * grad_scale;
+            let g = g * c.grad_scale;
             *m = b1 * *m + (1.0 - b1) * g;
             *v = b2 * *v + (1.0 - b2) * g * g;
             *p -= lr * (*m * factor) / (v.sqrt() + eps);
@@ -160,10 +154,12 @@ impl pulp::WithSimd for AdamOn<'_> {
 /// The joint L2 norm of all gradients.
 pub fn global_norm(grads: &[&[f32]]) -> f32 {
     let pieces: Vec<&[f32]> = grads.iter().flat_map(|g| g.chunks(PIECE)).collect();
+    // one sum per piece, added in order: the same bits whichever thread took which piece
     let sq: f64 = if pieces.len() < PARALLEL_PIECES {
         pieces.into_iter().map(squares).sum()
     } else {
-        pieces.into_par_iter().map(squares).sum()
+        let sums: Vec<f64> = pieces.into_par_iter().map(squares).collect();
+        sums.iter().sum()
     };
     sq.sqrt() as f32
 }

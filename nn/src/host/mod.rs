@@ -162,7 +162,7 @@ impl HostMlp {
     }
 }
 
-/// FLOPs above which a product is split in two halves run side by side (rayon's pool):
+/// FLOPs above which a product is split into parts run side by side (rayon's pool):
 /// the wide output layers of categorical heads (512 to 4,096 logits) would otherwise keep
 /// one core busy while the other, done with the small critic, waits.
 const SPLIT_FLOPS: usize = 4_000_000;
@@ -243,6 +243,28 @@ mod tests {
         assert!((&out_sparse - &out_dense).iter().all(|d| d.abs() < 1e-6));
         for (a, b) in g_sparse.slices().iter().zip(g_dense.slices()) {
             assert!(a.iter().zip(b).all(|(p, q)| (p - q).abs() < 1e-6));
+        }
+    }
+
+    #[test]
+    fn products_split_into_any_number_of_parts_equal_one_product() {
+        let value = |i: usize, j: usize| ((i * 13 + j * 7) % 17) as f32 / 17.0 - 0.5;
+        // c wider than tall (columns split) and taller than wide (rows split)
+        for (m, k, n) in [(48, 64, 1500), (1500, 64, 48)] {
+            let a = Array2::from_shape_fn((m, k), |(i, j)| value(i, j));
+            let b = Array2::from_shape_fn((k, n), |(i, j)| value(i + 3, j));
+            let mut whole = Array2::zeros((m, n));
+            general_mat_mul(1.0, &a, &b, 0.0, &mut whole);
+            for parts in [1, 2, 3, 5] {
+                let mut c = Array2::from_elem((m, n), f32::NAN);
+                split_mat_mul(a.view(), b.view(), c.view_mut(), parts);
+                // every entry written (no NaN left) and equal to the whole product's
+                let diff = &c - &whole;
+                assert!(
+                    diff.iter().all(|d| d.abs() < 1e-5),
+                    "{m}x{k}x{n} in {parts} parts"
+                );
+            }
         }
     }
 }
