@@ -138,16 +138,33 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
     }
 }
 
-/// Single-thread GEMM throughput in GFLOP/s on `n x n` matrices (matrixmultiply, through
-/// ndarray): the machine's practical limit for dense products on one core.
-pub fn gemm_peak(n: usize, repeats: usize) -> f64 {
+/// A single-thread GEMM kernel the bench can time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kernel {
+    /// The fused update's own product ([`jsae_nn::host::product`]: the `gemm` crate, AVX-512
+    /// where the CPU has it).
+    Host,
+    /// ndarray's `dot` (matrixmultiply, AVX2 at most): the kernel the fused update used first.
+    Ndarray,
+}
+
+/// Single-thread GEMM throughput in GFLOP/s on `n x n` matrices: with [`Kernel::Host`], the
+/// practical limit for the fused update's dense products on one core.
+pub fn gemm_peak(kernel: Kernel, n: usize, repeats: usize) -> f64 {
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let a = Array2::from_shape_fn((n, n), |_| rng.random_range(-1.0f32..1.0));
     let b = Array2::from_shape_fn((n, n), |_| rng.random_range(-1.0f32..1.0));
-    let mut sink = a.dot(&b)[[0, 0]];
+    let mut c = Array2::zeros((n, n));
+    let product = |c: &mut Array2<f32>| match kernel {
+        Kernel::Host => jsae_nn::host::product(a.view(), b.view(), c.view_mut()),
+        Kernel::Ndarray => *c = a.dot(&b),
+    };
+    product(&mut c);
+    let mut sink = c[[0, 0]];
     let t = Instant::now();
     for _ in 0..repeats.max(1) {
-        sink += a.dot(&b)[[0, 0]];
+        product(&mut c);
+        sink += c[[0, 0]];
     }
     let s = t.elapsed().as_secs_f64();
     std::hint::black_box(sink);
@@ -168,15 +185,19 @@ pub const CASES: [(EnvName, Algo); 7] = [
 /// Runs every case on both update paths and formats the table.
 pub fn run(quick: bool) -> String {
     let updates = if quick { 1 } else { 3 };
-    let peak = gemm_peak(512, if quick { 4 } else { 40 });
+    let repeats = if quick { 4 } else { 40 };
+    let peak = gemm_peak(Kernel::Host, 512, repeats);
+    let ndarray_peak = gemm_peak(Kernel::Ndarray, 512, repeats);
     // the fused update shares its work between rayon's threads
     let threads = rayon::current_num_threads().max(1);
     let limit = peak * threads as f64;
     let mut out = format!(
-        "PPO update, {BATCH} samples, one process; old: burn autodiff (flex), new: fused host \
+        "PPO update, {BATCH} samples, one process; old: burn autodiff (flex, its products on the \
+         gemm crate too), new: fused host \
          update on rayon's {threads} threads (actor and critic halves, wide products, softmax \
          rows and Adam split between them); GEMM peak {peak:.1} \
-         GFLOP/s (512x512 f32, one thread, this run), limit {limit:.1} ({threads} threads)\n"
+         GFLOP/s (512x512 f32, one thread, this run, the fused update's kernel: the gemm crate; \
+         ndarray's matrixmultiply {ndarray_peak:.1}), limit {limit:.1} ({threads} threads)\n"
     );
     out.push_str(&format!(
         "{:<26} {:>6} {:>17} {:>4} {:>7} {:>9} {:>9} {:>8} {:>8} {:>6} {:>8} {:>7}\n",
@@ -243,6 +264,8 @@ mod tests {
                 "{path:?}: {b:?}"
             );
         }
-        assert!(gemm_peak(64, 2) > 0.0);
+        for kernel in [Kernel::Host, Kernel::Ndarray] {
+            assert!(gemm_peak(kernel, 64, 2) > 0.0);
+        }
     }
 }

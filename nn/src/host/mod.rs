@@ -1,5 +1,6 @@
 //! Training on the host without a tensor graph: an MLP's forward and backward pass over
-//! preallocated buffers with the dense products on a GEMM kernel (ndarray's matrixmultiply),
+//! preallocated buffers with the dense products on a GEMM kernel (`dense`: the gemm crate's,
+//! AVX-512 where the CPU has it),
 //! vectorisable `exp`/`tanh` (`math`), and Adam with global gradient-norm clipping (`adam`),
 //! equal to burn's. At minibatch sizes like PPO's 64 a graph of small tensor operations
 //! costs far more in per-operation overhead than in arithmetic; these do the arithmetic only.
@@ -8,13 +9,14 @@
 //! with [`crate::Mlp::set_from_host`]: the burn module stays the one model definition.
 
 mod adam;
+mod dense;
 pub mod math;
 mod sparse;
 
-use ndarray::linalg::general_mat_mul;
 use ndarray::{Array1, Array2, ArrayView2, ArrayViewMut2, Axis};
 
 pub use adam::{HostAdam, clip_scale, global_norm};
+pub use dense::product;
 pub use sparse::{HostInput, SparseRows};
 
 /// An MLP's weights on the host: `w[i]` is `[in, out]` (burn's layout), `b[i]` is `[out]`;
@@ -176,12 +178,12 @@ fn mat_mul(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>, c: ArrayViewMut2<'_, 
 fn split_mat_mul(
     a: ArrayView2<'_, f32>,
     b: ArrayView2<'_, f32>,
-    mut c: ArrayViewMut2<'_, f32>,
+    c: ArrayViewMut2<'_, f32>,
     parts: usize,
 ) {
     let (m, k, n) = (a.nrows(), a.ncols(), b.ncols());
     if parts < 2 || 2 * m * k * n < SPLIT_FLOPS || m.max(n) < 32 {
-        general_mat_mul(1.0, &a, &b, 0.0, &mut c);
+        dense::product(a, b, c);
         return;
     }
     let (left, right) = (parts / 2, parts - parts / 2);
@@ -207,6 +209,7 @@ fn split_mat_mul(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ndarray::linalg::general_mat_mul;
 
     /// The forward output and every gradient for input `x`.
     fn pass(mlp: &HostMlp, x: HostInput<'_>) -> (Array2<f32>, HostMlp) {
