@@ -10,6 +10,7 @@
 
 mod adam;
 mod dense;
+mod elementwise;
 pub mod math;
 mod sparse;
 
@@ -128,17 +129,8 @@ impl HostMlp {
             }
             let bias = self.b[i].as_slice().unwrap_or(&[]);
             let data = out.as_slice_mut().unwrap_or(&mut []);
-            for row in data.chunks_exact_mut(cols.max(1)) {
-                if i + 1 < n {
-                    for (z, &bj) in row.iter_mut().zip(bias) {
-                        *z = math::tanh(*z + bj);
-                    }
-                } else {
-                    for (z, &bj) in row.iter_mut().zip(bias) {
-                        *z += bj;
-                    }
-                }
-            }
+            // tanh between layers, none after the last
+            elementwise::add_bias(data, bias, i + 1 < n);
         }
     }
 
@@ -153,12 +145,19 @@ impl HostMlp {
                 (0, HostInput::Sparse(x)) => x.outer(delta, &mut grads.w[0]),
                 _ => mat_mul(work.acts[i - 1].t(), delta.view(), grads.w[i].view_mut()),
             }
-            grads.b[i].assign(&delta.sum_axis(Axis(0)));
+            match (delta.as_slice(), grads.b[i].as_slice_mut()) {
+                (Some(d), Some(gb)) => elementwise::column_sums(d, gb),
+                _ => grads.b[i].assign(&delta.sum_axis(Axis(0))),
+            }
             if i > 0 {
                 let below = &mut lower[i - 1];
                 mat_mul(delta.view(), self.w[i].t(), below.view_mut());
                 // through the tanh of layer i-1: d tanh = 1 - tanh^2
-                below.zip_mut_with(&work.acts[i - 1], |g, &a| *g *= 1.0 - a * a);
+                let acts = &work.acts[i - 1];
+                match (below.as_slice_mut(), acts.as_slice()) {
+                    (Some(g), Some(a)) => elementwise::through_tanh(g, a),
+                    _ => below.zip_mut_with(acts, |g, &a| *g *= 1.0 - a * a),
+                }
             }
         }
     }

@@ -5,6 +5,8 @@
 
 use ndarray::{Array2, ArrayView2};
 
+use super::elementwise::{sparse_outer, sparse_product};
+
 /// The rows of a `[rows, cols]` matrix as their non-zero entries: row `r` holds
 /// `index[start[r]..start[r + 1]]` with `value` alongside.
 #[derive(Debug, Clone, PartialEq)]
@@ -119,10 +121,20 @@ impl SparseRows {
     /// `out = x w` (`w` is `[cols, out]`).
     pub(super) fn mul(&self, w: &Array2<f32>, out: &mut Array2<f32>) {
         out.fill(0.0);
-        for (r, mut out_row) in out.rows_mut().into_iter().enumerate() {
-            let (index, value) = self.row(r);
-            for (&j, &v) in index.iter().zip(value) {
-                out_row.scaled_add(v, &w.row(j as usize));
+        let width = w.ncols();
+        match (out.as_slice_mut(), w.as_slice()) {
+            (Some(out), Some(w))
+                if out.len() == self.nrows() * width && w.len() == self.cols * width =>
+            {
+                sparse_product(self, w, out, width);
+            }
+            _ => {
+                for (r, mut out_row) in out.rows_mut().into_iter().enumerate() {
+                    let (index, value) = self.row(r);
+                    for (&j, &v) in index.iter().zip(value) {
+                        out_row.scaled_add(v, &w.row(j as usize));
+                    }
+                }
             }
         }
     }
@@ -130,10 +142,20 @@ impl SparseRows {
     /// `g = x^T delta` (`g` is `[cols, delta's cols]`).
     pub(super) fn outer(&self, delta: &Array2<f32>, g: &mut Array2<f32>) {
         g.fill(0.0);
-        for (r, d_row) in delta.rows().into_iter().enumerate() {
-            let (index, value) = self.row(r);
-            for (&j, &v) in index.iter().zip(value) {
-                g.row_mut(j as usize).scaled_add(v, &d_row);
+        let width = delta.ncols();
+        match (g.as_slice_mut(), delta.as_slice()) {
+            (Some(g), Some(delta))
+                if g.len() == self.cols * width && delta.len() == self.nrows() * width =>
+            {
+                sparse_outer(self, delta, g, width);
+            }
+            _ => {
+                for (r, d_row) in delta.rows().into_iter().enumerate() {
+                    let (index, value) = self.row(r);
+                    for (&j, &v) in index.iter().zip(value) {
+                        g.row_mut(j as usize).scaled_add(v, &d_row);
+                    }
+                }
             }
         }
     }
