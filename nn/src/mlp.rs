@@ -68,7 +68,7 @@ impl Mlp {
             .map(|(i, layer)| Linear {
                 weight: layer
                     .weight
-                    .map(|old| replaced(old, host.w[i].as_slice().unwrap_or(&[]))),
+                    .map(|old| replaced(old, &host.weight(i).iter().copied().collect::<Vec<_>>())),
                 bias: layer
                     .bias
                     .map(|p| p.map(|old| replaced(old, host.b[i].as_slice().unwrap_or(&[])))),

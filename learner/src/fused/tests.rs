@@ -120,7 +120,7 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
             let gw = layer.weight.val().grad(&grads).map(jsae_nn::to_vec);
             let gw = gw.unwrap_or_else(|| vec![0.0; host_grads.w[i].len()]);
             close(
-                &host_grads.w[i].iter().copied().collect::<Vec<_>>(),
+                &host_grads.weight(i).iter().copied().collect::<Vec<_>>(),
                 &gw,
                 &format!("{what}: {name} weight {i}"),
             );

@@ -20,11 +20,15 @@ pub use adam::{HostAdam, clip_scale, global_norm};
 pub use dense::product;
 pub use sparse::{HostInput, SparseRows};
 
-/// An MLP's weights on the host: `w[i]` is `[in, out]` (burn's layout), `b[i]` is `[out]`;
-/// tanh between layers, none after the last.
+/// An MLP's weights on the host, tanh between layers, none after the last. The first layer's
+/// weights are `[in, out]` (burn's layout: a one-hot input picks weight rows); every later
+/// layer's are `[out, in]`, transposed, the layout in which the forward product, the weight
+/// gradient and the input gradient all run at the kernel's full speed (with `[in, out]` the
+/// input gradient reads the weights across rows and runs at half speed on wide layers).
+/// [`Self::weight`] reads any layer in burn's layout. `b[i]` is `[out]`.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HostMlp {
-    /// Weights per layer, `[in, out]`.
+    /// Weights per layer: `[in, out]` for the first, `[out, in]` for the others.
     pub w: Vec<Array2<f32>>,
     /// Biases per layer, `[out]`.
     pub b: Vec<Array1<f32>>,
@@ -68,10 +72,13 @@ impl HostMlp {
             let weight = layer.weight.val();
             let [rows, cols] = weight.dims();
             let data = crate::to_vec(weight);
-            w.push(
-                Array2::from_shape_vec((rows, cols), data)
-                    .unwrap_or_else(|_| Array2::zeros((rows, cols))),
-            );
+            let burn_layout = Array2::from_shape_vec((rows, cols), data)
+                .unwrap_or_else(|_| Array2::zeros((rows, cols)));
+            w.push(if w.is_empty() {
+                burn_layout
+            } else {
+                burn_layout.t().as_standard_layout().into_owned()
+            });
             let bias = layer
                 .bias
                 .as_ref()
@@ -79,6 +86,15 @@ impl HostMlp {
             b.push(Array1::from(bias));
         }
         Self { w, b }
+    }
+
+    /// Layer `i`'s weights (or weight gradients) in burn's layout, `[in, out]`.
+    pub fn weight(&self, i: usize) -> ArrayView2<'_, f32> {
+        if i == 0 {
+            self.w[0].view()
+        } else {
+            self.w[i].t()
+        }
     }
 
     /// Zeros in this MLP's shape (gradients, optimiser moments).
@@ -117,7 +133,7 @@ impl HostMlp {
         work.acts.resize_with(n, Default::default);
         work.delta.resize_with(n, Default::default);
         for i in 0..n {
-            let cols = self.w[i].ncols();
+            let cols = self.b[i].len();
             shaped(&mut work.acts[i], rows, cols);
             shaped(&mut work.delta[i], rows, cols);
             let (done, rest) = work.acts.split_at_mut(i);
@@ -125,7 +141,7 @@ impl HostMlp {
             match (i, x) {
                 (0, HostInput::Dense(x)) => mat_mul(x, self.w[0].view(), out.view_mut()),
                 (0, HostInput::Sparse(x)) => x.mul(&self.w[0], out),
-                _ => mat_mul(done[i - 1].view(), self.w[i].view(), out.view_mut()),
+                _ => mat_mul(done[i - 1].view(), self.w[i].t(), out.view_mut()),
             }
             let bias = self.b[i].as_slice().unwrap_or(&[]);
             let data = out.as_slice_mut().unwrap_or(&mut []);
@@ -143,7 +159,8 @@ impl HostMlp {
             match (i, x) {
                 (0, HostInput::Dense(x)) => mat_mul(x.t(), delta.view(), grads.w[0].view_mut()),
                 (0, HostInput::Sparse(x)) => x.outer(delta, &mut grads.w[0]),
-                _ => mat_mul(work.acts[i - 1].t(), delta.view(), grads.w[i].view_mut()),
+                // [out, in] = [out, rows] x [rows, in]
+                _ => mat_mul(delta.t(), work.acts[i - 1].view(), grads.w[i].view_mut()),
             }
             match (delta.as_slice(), grads.b[i].as_slice_mut()) {
                 (Some(d), Some(gb)) => elementwise::column_sums(d, gb),
@@ -151,7 +168,8 @@ impl HostMlp {
             }
             if i > 0 {
                 let below = &mut lower[i - 1];
-                mat_mul(delta.view(), self.w[i].t(), below.view_mut());
+                // [rows, in] = [rows, out] x [out, in]
+                mat_mul(delta.view(), self.w[i].view(), below.view_mut());
                 // through the tanh of layer i-1: d tanh = 1 - tanh^2
                 let acts = &work.acts[i - 1];
                 match (below.as_slice_mut(), acts.as_slice()) {
@@ -229,7 +247,7 @@ mod tests {
         let mlp = HostMlp {
             w: vec![
                 Array2::from_shape_fn((input, 5), |(i, j)| value(i, j)),
-                Array2::from_shape_fn((5, 3), |(i, j)| value(i + 1, j)),
+                Array2::from_shape_fn((3, 5), |(i, j)| value(j + 1, i)), // [out, in]
             ],
             b: vec![Array1::from(vec![0.1; 5]), Array1::from(vec![-0.2; 3])],
         };
