@@ -155,7 +155,7 @@ pub fn run(quick: bool) -> String {
     }
     out.push_str(
         "envs: per actor (the batch stays 2,048); rollouts: an actor may have out before a newer \
-         policy answers them (2: the
+         policy answers them (2: the \
          next rollout is collected while the learner updates); env-steps/s: between the first \
          and the last update; lag: mean policy lag of the fragments; dropped: fragments \
          dropped for lag\n",
