@@ -58,8 +58,9 @@ impl Mlp {
         &self.layers
     }
 
-    /// Replaces the weights with `host`'s (same shapes, as [`crate::HostMlp::from_burn`]
-    /// reads them), keeping each parameter's id and whether it requires gradients.
+    /// Replaces the weights with `host`'s (an MLP of this one's shapes, read in burn's layout
+    /// through [`crate::HostMlp::weight`]), keeping each parameter's id and whether it
+    /// requires gradients.
     pub fn set_from_host(&mut self, host: &crate::HostMlp) {
         let layers = std::mem::take(&mut self.layers);
         self.layers = layers

@@ -150,7 +150,7 @@ pub enum Kernel {
     /// The fused update's own product ([`jsae_nn::host::product`]: the `gemm` crate, AVX-512
     /// where the CPU has it).
     Host,
-    /// ndarray's `dot` (matrixmultiply, AVX2 at most): the kernel the fused update used first.
+    /// ndarray's product (matrixmultiply, AVX2 at most): the kernel the fused update used first.
     Ndarray,
 }
 
@@ -163,7 +163,7 @@ pub fn gemm_peak(kernel: Kernel, n: usize, repeats: usize) -> f64 {
     let mut c = Array2::zeros((n, n));
     let product = |c: &mut Array2<f32>| match kernel {
         Kernel::Host => jsae_nn::host::product(a.view(), b.view(), c.view_mut()),
-        Kernel::Ndarray => *c = a.dot(&b),
+        Kernel::Ndarray => ndarray::linalg::general_mat_mul(1.0, &a, &b, 0.0, c),
     };
     product(&mut c);
     let mut sink = c[[0, 0]];

@@ -2,8 +2,10 @@
 //! (`loss`), with the dense products on a GEMM kernel and the MLPs' buffers reused between
 //! minibatches ([`jsae_nn::host`]), instead of a graph of ~30 small tensor operations through
 //! burn's autodiff. Same model, same parameters: [`HostPolicy`] is read from the burn
-//! [`Policy`] and written back into it ([`Policy::load_host`]); burn's `Linear` weights are
-//! `[in, out]` and the gradients come out in the same layout.
+//! [`Policy`] and written back into it ([`Policy::load_host`]). The host keeps the weights
+//! of every layer after the first as `[out, in]` (burn's `Linear` weights are `[in, out]`),
+//! and the gradients come out in the host's layout; [`jsae_nn::HostMlp::weight`] reads
+//! either in burn's.
 //!
 //! The loss is the one `ppo::update`'s burn path builds: the clipped surrogate, minus
 //! `ent_coef` times the mean entropy, plus `vf_coef` times the (optionally clipped) value
@@ -165,10 +167,12 @@ impl HostPolicy {
         }
     }
 
-    /// `V(x)` for every row of `x` (network inputs, `[rows, input]`).
-    pub fn values(&self, x: HostInput<'_>) -> Vec<f32> {
+    /// `V(x)` under `policy`'s critic for every row of `x` (network inputs, `[rows, input]`);
+    /// only the critic is copied to the host.
+    pub fn values(policy: &Policy, x: HostInput<'_>) -> Vec<f32> {
+        let (_, critic, _) = policy.parts();
         let mut work = MlpWork::default();
-        self.params.critic.forward(x, &mut work);
+        HostMlp::from_burn(critic).forward(x, &mut work);
         work.output().iter().copied().collect()
     }
 }

@@ -51,7 +51,7 @@ impl Batch {
             all_x.extend_from_slice(&f.last_next_x);
         }
         let inputs = NetworkInput::new(&all_x, x_dim, obs_stats(policy).as_ref());
-        let values = HostPolicy::from_policy(policy).values(inputs.host());
+        let values = HostPolicy::values(policy, inputs.host());
 
         let mut out = Batch {
             x_dim,

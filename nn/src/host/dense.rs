@@ -104,6 +104,19 @@ mod tests {
     }
 
     #[test]
+    fn reversed_views_negative_strides_are_read_in_their_order() {
+        let a = Array2::from_shape_fn((5, 7), |(i, j)| value(i, j));
+        let b = Array2::from_shape_fn((7, 3), |(i, j)| value(i + 1, j));
+        let a_rev = a.slice(ndarray::s![..;-1, ..]);
+        let b_rev = b.slice(ndarray::s![.., ..;-1]);
+        let mut expected = Array2::zeros((5, 3));
+        general_mat_mul(1.0, &a_rev, &b_rev, 0.0, &mut expected);
+        let mut c = Array2::from_elem((5, 3), f32::NAN);
+        product(a_rev, b_rev, c.view_mut());
+        assert!((&c - &expected).iter().all(|d| d.abs() < 1e-5));
+    }
+
+    #[test]
     fn an_empty_inner_dimension_gives_zeros() {
         let a = Array2::<f32>::zeros((3, 0));
         let b = Array2::<f32>::zeros((0, 4));

@@ -65,8 +65,9 @@ simd_op! {
 }
 
 simd_op! {
-    /// `out[r] = sum_j v_j w[j]` for the non-zero entries `(j, v_j)` of each sparse row `r`
-    /// (`add` false), or `out[j] += v_j d[r]` for them (`add` true: the transposed product).
+    /// `out[r] += v_j dense[j]` for the non-zero entries `(j, v_j)` of each sparse row `r`
+    /// (`transposed` false), or `out[j] += v_j dense[r]` (`transposed` true: the transposed
+    /// product); rows of `width` values.
     SparseProduct<'a> {
         rows: &'a super::SparseRows,
         dense: &'a [f32],
@@ -107,8 +108,8 @@ pub(super) fn column_sums(data: &[f32], out: &mut [f32]) {
     pulp::Arch::new().dispatch(ColumnSums { data, out });
 }
 
-/// `out = x w` for sparse rows `x` (`w`: `[x's cols, width]`, `out`: `[x's rows, width]`,
-/// both row-major), accumulated into `out`.
+/// `out += x w` for sparse rows `x` (`w`: `[x's cols, width]`, `out`: `[x's rows, width]`,
+/// both row-major).
 pub(super) fn sparse_product(x: &super::SparseRows, w: &[f32], out: &mut [f32], width: usize) {
     pulp::Arch::new().dispatch(SparseProduct {
         rows: x,

@@ -267,6 +267,46 @@ mod tests {
     }
 
     #[test]
+    fn burn_weights_round_trip_and_the_host_pass_equals_burns() {
+        use crate::{BurnDevice, DeviceKind};
+        use rand::SeedableRng;
+        let device = DeviceKind::Flex.device();
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let config = crate::MlpConfig {
+            input: 5,
+            hidden: vec![4, 6],
+            output: 3,
+            output_gain: 1.0,
+        };
+        let mut mlp = config.init(&mut rng, &device);
+        let host = HostMlp::from_burn(&mlp);
+        // the first layer in burn's [in, out], the later ones [out, in]
+        let dims: Vec<_> = host.w.iter().map(|w| w.dim()).collect();
+        assert_eq!(dims, vec![(5, 4), (6, 4), (3, 6)]);
+        for (i, layer) in mlp.layers().iter().enumerate() {
+            let burn: Vec<f32> = crate::to_vec(layer.weight.val());
+            assert_eq!(host.weight(i).iter().copied().collect::<Vec<_>>(), burn);
+        }
+        let x = Array2::from_shape_fn((3, 5), |(i, j)| (i * 5 + j) as f32 * 0.1 - 0.7);
+        let data = x.iter().copied().collect();
+        let burn_out = crate::to_vec(mlp.forward(crate::tensor2(data, 3, 5, &device)));
+        let mut work = MlpWork::default();
+        host.forward(HostInput::Dense(x.view()), &mut work);
+        for (h, b) in work.output().iter().zip(&burn_out) {
+            assert!((h - b).abs() < 1e-5, "{h} vs {b}");
+        }
+        // changed on the host, written back, read again: the same weights
+        let mut changed = host.clone();
+        for (k, piece) in changed.slices_mut().into_iter().enumerate() {
+            for (j, v) in piece.iter_mut().enumerate() {
+                *v += (k * 10 + j) as f32 * 0.01;
+            }
+        }
+        mlp.set_from_host(&changed);
+        assert_eq!(HostMlp::from_burn(&mlp), changed);
+    }
+
+    #[test]
     fn products_split_into_any_number_of_parts_equal_one_product() {
         let value = |i: usize, j: usize| ((i * 13 + j * 7) % 17) as f32 / 17.0 - 0.5;
         // c wider than tall (columns split) and taller than wide (rows split)

@@ -119,15 +119,22 @@ impl SparseRows {
     }
 
     /// `out = x w` (`w` is `[cols, out]`).
+    ///
+    /// # Panics
+    /// When the shapes do not fit together.
     pub(super) fn mul(&self, w: &Array2<f32>, out: &mut Array2<f32>) {
-        out.fill(0.0);
         let width = w.ncols();
+        assert!(
+            w.nrows() == self.cols && out.dim() == (self.nrows(), width),
+            "sparse [{}, {}] times {:?} into {:?}",
+            self.nrows(),
+            self.cols,
+            w.dim(),
+            out.dim()
+        );
+        out.fill(0.0);
         match (out.as_slice_mut(), w.as_slice()) {
-            (Some(out), Some(w))
-                if out.len() == self.nrows() * width && w.len() == self.cols * width =>
-            {
-                sparse_product(self, w, out, width);
-            }
+            (Some(out), Some(w)) => sparse_product(self, w, out, width),
             _ => {
                 for (r, mut out_row) in out.rows_mut().into_iter().enumerate() {
                     let (index, value) = self.row(r);
@@ -140,15 +147,22 @@ impl SparseRows {
     }
 
     /// `g = x^T delta` (`g` is `[cols, delta's cols]`).
+    ///
+    /// # Panics
+    /// When the shapes do not fit together.
     pub(super) fn outer(&self, delta: &Array2<f32>, g: &mut Array2<f32>) {
-        g.fill(0.0);
         let width = delta.ncols();
+        assert!(
+            delta.nrows() == self.nrows() && g.dim() == (self.cols, width),
+            "sparse [{}, {}] transposed times {:?} into {:?}",
+            self.nrows(),
+            self.cols,
+            delta.dim(),
+            g.dim()
+        );
+        g.fill(0.0);
         match (g.as_slice_mut(), delta.as_slice()) {
-            (Some(g), Some(delta))
-                if g.len() == self.cols * width && delta.len() == self.nrows() * width =>
-            {
-                sparse_outer(self, delta, g, width);
-            }
+            (Some(g), Some(delta)) => sparse_outer(self, delta, g, width),
             _ => {
                 for (r, d_row) in delta.rows().into_iter().enumerate() {
                     let (index, value) = self.row(r);
