@@ -4,7 +4,7 @@
 //! then runs that MLP's backward pass.
 
 use jsae_nn::host::math;
-use jsae_nn::{HostMlp, MlpWork};
+use jsae_nn::{HostMlp, MlpWork, OutputBias};
 
 use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
 use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
@@ -32,34 +32,74 @@ struct ActorOut<'a> {
     log_ratio: &'a mut Vec<f32>,
 }
 
+/// One part's sums over its samples: the surrogate, the entropy (categorical; the Gaussian's
+/// does not depend on the sample) and the squared value error.
+#[derive(Debug, Clone, Copy, Default)]
+struct PartSums {
+    pg: f32,
+    entropy: f32,
+    value: f32,
+}
+
 impl HostPolicy {
-    /// The loss on `mb`; every parameter's gradient is left in `work` ([`FusedWork::grads`]).
-    /// The actor's half and the critic's half run side by side (rayon's pool; one thread
-    /// runs both in turn where no other is free).
+    /// The loss on the minibatch whose rows are `parts` (in order; see
+    /// [`super::minibatch_parts`]); every parameter's gradient is left in `work`
+    /// ([`FusedWork::grads`]). The parts run side by side, each with its actor's half and its
+    /// critic's half side by side too (rayon's pool: a thread runs what no other takes), and
+    /// their gradients are added in order, so the result does not depend on which thread
+    /// ran what.
     pub fn loss_and_grads(
         &self,
-        mb: &HostMinibatch<'_>,
+        parts: &[HostMinibatch<'_>],
         cfg: LossConfig,
         work: &mut FusedWork,
     ) -> LossParts {
-        let FusedWork {
-            actor,
-            critic,
-            grads,
-            log_ratio,
-        } = work;
-        let ((pg, entropy), value) = rayon::join(
-            || {
-                let out = ActorOut {
-                    work: actor,
-                    grads: &mut grads.actor,
-                    log_std: grads.log_std.as_slice_mut().unwrap_or(&mut []),
-                    log_ratio,
-                };
-                self.actor_pass(mb, cfg, out)
-            },
-            || self.critic_pass(mb, cfg, critic, &mut grads.critic),
-        );
+        use rayon::prelude::*;
+        let rows: usize = parts.iter().map(|mb| mb.x.nrows()).sum();
+        // every sample's term is divided by the whole minibatch's size
+        let bf = rows.max(1) as f32;
+        work.parts.truncate(parts.len().max(1));
+        while work.parts.len() < parts.len() {
+            work.parts.push(super::PartWork::new(self));
+        }
+        let sums: Vec<PartSums> = parts
+            .par_iter()
+            .zip(work.parts.par_iter_mut())
+            .map(|(mb, part)| self.part_pass(mb, cfg, bf, part))
+            .collect();
+        work.log_ratio.clear();
+        for part in &work.parts {
+            work.log_ratio.extend_from_slice(&part.log_ratio);
+        }
+        let (first, rest) = work.parts.split_at_mut(1);
+        let grads = &mut first[0].grads;
+        for other in rest.iter() {
+            jsae_nn::host::add_gradients(&mut grads.slices_mut(), &other.grads.slices());
+        }
+        let total = sums.iter().fold(PartSums::default(), |acc, s| PartSums {
+            pg: acc.pg + s.pg,
+            entropy: acc.entropy + s.entropy,
+            value: acc.value + s.value,
+        });
+        let entropy = match self.head {
+            PolicyHead::Gaussian { dim } => {
+                // the mean entropy is the log-stds' (clamped) sum plus a constant; its
+                // gradient, once per minibatch
+                for (g, v) in grads.log_std.iter_mut().zip(&self.params.log_std) {
+                    if (LOG_STD_MIN..=LOG_STD_MAX).contains(v) {
+                        *g -= cfg.ent_coef;
+                    }
+                }
+                self.params
+                    .log_std
+                    .iter()
+                    .map(|v| v.clamp(LOG_STD_MIN, LOG_STD_MAX))
+                    .sum::<f32>()
+                    + (0.5 + HALF_LOG_2PI) * dim as f32
+            }
+            PolicyHead::Categorical { .. } => total.entropy / bf,
+        };
+        let (pg, value) = (total.pg / bf, total.value * 0.5 / bf);
         LossParts {
             total: pg - cfg.ent_coef * entropy + cfg.vf_coef * value,
             pg,
@@ -68,24 +108,59 @@ impl HostPolicy {
         }
     }
 
-    /// The surrogate and the mean entropy, and the actor's and log-std's gradients.
+    /// One part's sums, its actor's and critic's gradients into `part`'s buffers.
+    fn part_pass(
+        &self,
+        mb: &HostMinibatch<'_>,
+        cfg: LossConfig,
+        bf: f32,
+        part: &mut super::PartWork,
+    ) -> PartSums {
+        let super::PartWork {
+            actor,
+            critic,
+            grads,
+            log_ratio,
+        } = part;
+        let ((pg, entropy), value) = rayon::join(
+            || {
+                let out = ActorOut {
+                    work: actor,
+                    grads: &mut grads.actor,
+                    log_std: grads.log_std.as_slice_mut().unwrap_or(&mut []),
+                    log_ratio,
+                };
+                self.actor_pass(mb, cfg, bf, out)
+            },
+            || self.critic_pass(mb, cfg, bf, critic, &mut grads.critic),
+        );
+        PartSums { pg, entropy, value }
+    }
+
+    /// The sums of the surrogate and (categorical) of the entropy over `mb`'s samples, and
+    /// their terms' gradients for the actor and the log-std, each divided by `bf` (the whole
+    /// minibatch's size; the Gaussian entropy's gradient is [`Self::loss_and_grads`]'s).
     fn actor_pass(
         &self,
         mb: &HostMinibatch<'_>,
         cfg: LossConfig,
+        bf: f32,
         work: ActorOut<'_>,
     ) -> (f32, f32) {
         let p = &self.params;
-        let b = mb.x.nrows();
-        let bf = b as f32;
-        p.actor.forward(mb.x, work.work);
+        // the softmax rows add the bias and sum its gradient as they go
+        let output_bias = match self.head {
+            PolicyHead::Gaussian { .. } => OutputBias::InPass,
+            PolicyHead::Categorical { .. } => OutputBias::ByCaller,
+        };
+        p.actor.forward_with(mb.x, work.work, output_bias);
         work.log_ratio.clear();
         let mut pg = 0.0;
         let mut d_ls = vec![0.0f32; p.log_std.len()];
-        let entropy;
-        let (out, d_out) = work.work.output_and_grad();
+        let mut entropy = 0.0;
+        let (out, d_out) = work.work.output_mut_and_grad();
         let width = out.ncols().max(1);
-        let out = out.as_slice().unwrap_or(&[]);
+        let out = out.as_slice_mut().unwrap_or(&mut []);
         let d_out = d_out.as_slice_mut().unwrap_or(&mut []);
         match self.head {
             PolicyHead::Gaussian { dim } => {
@@ -132,34 +207,34 @@ impl HostPolicy {
                         d_ls[j] += dpg * zz[j] * passes[j];
                     }
                 }
-                entropy = ls.iter().sum::<f32>() + (0.5 + HALF_LOG_2PI) * dim as f32;
-                for (g, pass) in d_ls.iter_mut().zip(&passes) {
-                    *g -= cfg.ent_coef * pass;
-                }
             }
             PolicyHead::Categorical { .. } => {
-                let (pg_sum, ent_sum) =
-                    super::categorical::rows(out, d_out, width, mb, cfg, work.log_ratio);
-                pg = pg_sum;
-                entropy = ent_sum / bf;
+                let last = p.actor.b.len() - 1;
+                let bias = super::categorical::Bias {
+                    value: p.actor.b[last].as_slice().unwrap_or(&[]),
+                    grad: work.grads.b[last].as_slice_mut().unwrap_or(&mut []),
+                };
+                (pg, entropy) =
+                    super::categorical::rows(out, d_out, bias, mb, cfg, bf, work.log_ratio);
             }
         }
-        p.actor.backward(mb.x, work.work, work.grads);
+        p.actor
+            .backward_with(mb.x, work.work, work.grads, output_bias);
         work.log_std.copy_from_slice(&d_ls);
-        (pg / bf, entropy)
+        (pg, entropy)
     }
 
-    /// The value loss `0.5 mean((v - R)^2)` (or of the larger of it and the clipped one) and
-    /// the critic's gradients.
+    /// The sum over `mb`'s samples of `(v - R)^2` (or of the larger of it and the clipped
+    /// one; the value loss is half its mean over the minibatch), and the critic's gradients
+    /// of the value loss's terms (`bf`: the whole minibatch's size).
     fn critic_pass(
         &self,
         mb: &HostMinibatch<'_>,
         cfg: LossConfig,
+        bf: f32,
         work: &mut MlpWork,
         grads: &mut HostMlp,
     ) -> f32 {
-        let b = mb.x.nrows();
-        let bf = b as f32;
         self.params.critic.forward(mb.x, work);
         let (value, dv) = work.output_and_grad();
         let mut v_loss = 0.0;
@@ -185,6 +260,6 @@ impl HostPolicy {
             *g = grad * cfg.vf_coef / bf;
         }
         self.params.critic.backward(mb.x, work, grads);
-        v_loss * 0.5 / bf
+        v_loss
     }
 }

@@ -120,19 +120,31 @@ pub struct LossParts {
     pub entropy: f32,
 }
 
-/// Buffers of one minibatch step, kept between minibatches: both MLPs' activations, the
-/// gradients, and `logp - old_logp` per sample.
+/// Samples per part below which a minibatch is not split between threads: at PPO's usual
+/// 64 the actor's and the critic's halves already keep two threads busy, and smaller
+/// products run below the kernel's speed.
+const PART_ROWS: usize = 64;
+
+/// Into how many parts (runs of rows, in order) a minibatch of `rows` samples is split for
+/// [`HostPolicy::loss_and_grads`]: one per rayon thread where each has at least
+/// [`PART_ROWS`]. Splitting the rows keeps both cores busy where one MLP is much larger than
+/// the other (a categorical actor over hundreds of actions beside a one-output critic).
+pub fn minibatch_parts(rows: usize) -> usize {
+    (rows / PART_ROWS).clamp(1, rayon::current_num_threads().max(1))
+}
+
+/// One part's buffers: both MLPs' activations, the gradients of its samples' terms, and
+/// their `logp - old_logp`.
 #[derive(Debug, Clone)]
-pub struct FusedWork {
+struct PartWork {
     actor: MlpWork,
     critic: MlpWork,
     grads: HostGrads,
     log_ratio: Vec<f32>,
 }
 
-impl FusedWork {
-    /// Buffers for `policy`'s shapes.
-    pub fn new(policy: &HostPolicy) -> Self {
+impl PartWork {
+    fn new(policy: &HostPolicy) -> Self {
         Self {
             actor: MlpWork::default(),
             critic: MlpWork::default(),
@@ -140,10 +152,28 @@ impl FusedWork {
             log_ratio: Vec::new(),
         }
     }
+}
+
+/// Buffers of one minibatch step, kept between minibatches: each part's (the first part's
+/// gradients become the minibatch's), and `logp - old_logp` per sample.
+#[derive(Debug, Clone)]
+pub struct FusedWork {
+    parts: Vec<PartWork>,
+    log_ratio: Vec<f32>,
+}
+
+impl FusedWork {
+    /// Buffers for `policy`'s shapes.
+    pub fn new(policy: &HostPolicy) -> Self {
+        Self {
+            parts: vec![PartWork::new(policy)],
+            log_ratio: Vec::new(),
+        }
+    }
 
     /// The gradients of the last [`HostPolicy::loss_and_grads`].
     pub fn grads(&self) -> &HostGrads {
-        &self.grads
+        &self.parts[0].grads
     }
 
     /// `logp - old_logp` per sample of the last minibatch.

@@ -91,33 +91,53 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
         ActionBatch::Continuous { data, .. } => (data.as_slice(), &[][..]),
         ActionBatch::Discrete(a) => (&[][..], a.as_slice()),
     };
-    let mb = HostMinibatch {
-        x: HostInput::Dense(x_host.view()),
-        continuous,
-        discrete,
-        old_logp: &old_logp,
-        adv: &adv,
-        returns: &returns,
-        old_values: &old_values,
+    // rows `r` of the minibatch
+    let rows = |r: std::ops::Range<usize>| {
+        // the values of rows `r` in `v`, whose rows are `v.len() / b` long (or empty)
+        fn of<'a, T>(v: &'a [T], b: usize, r: &std::ops::Range<usize>) -> &'a [T] {
+            let w = v.len() / b;
+            &v[w * r.start..w * r.end]
+        }
+        HostMinibatch {
+            x: HostInput::Dense(x_host.slice_axis(ndarray::Axis(0), r.clone().into())),
+            continuous: of(continuous, b, &r),
+            discrete: of(discrete, b, &r),
+            old_logp: &old_logp[r.clone()],
+            adv: &adv[r.clone()],
+            returns: &returns[r.clone()],
+            old_values: &old_values[r],
+        }
     };
     let mut work = FusedWork::new(&host);
     // a smaller minibatch first: the buffers are reshaped, and nothing of it is left over
-    let half = HostMinibatch {
-        x: HostInput::Dense(x_host.slice_axis(ndarray::Axis(0), (0..b / 2).into())),
-        continuous: &continuous[..continuous.len() / 2],
-        discrete: &discrete[..discrete.len() / 2],
-        ..mb.clone()
-    };
-    host.loss_and_grads(&half, cfg, &mut work);
-    let parts = host.loss_and_grads(&mb, cfg, &mut work);
-    let g = work.grads();
-    let what = format!("{head:?} tanh_mean {tanh_mean} clip_value {clip_value_loss}");
-    close(&[parts.total], &[burn_loss], &format!("{what}: loss"));
+    host.loss_and_grads(&[rows(0..b / 2)], cfg, &mut work);
+    // the minibatch whole, and split into runs of rows (as threads share it): the same
+    for split in [vec![0, b], vec![0, 20, b], vec![0, 7, 30, b]] {
+        let parts: Vec<_> = split.windows(2).map(|w| rows(w[0]..w[1])).collect();
+        let what = format!(
+            "{head:?} tanh_mean {tanh_mean} clip_value {clip_value_loss} parts {}",
+            parts.len()
+        );
+        let loss = host.loss_and_grads(&parts, cfg, &mut work);
+        compare(&policy, &grads, &work, loss.total, burn_loss, &what);
+    }
+}
 
+/// The host's loss and gradients in `work` against burn's.
+fn compare(
+    policy: &Policy,
+    grads: &burn::tensor::Gradients,
+    work: &FusedWork,
+    host_loss: f32,
+    burn_loss: f32,
+    what: &str,
+) {
+    let g = work.grads();
+    close(&[host_loss], &[burn_loss], &format!("{what}: loss"));
     let (actor, critic, log_std) = policy.parts();
     for (name, mlp, host_grads) in [("actor", actor, &g.actor), ("critic", critic, &g.critic)] {
         for (i, layer) in mlp.layers().iter().enumerate() {
-            let gw = layer.weight.val().grad(&grads).map(jsae_nn::to_vec);
+            let gw = layer.weight.val().grad(grads).map(jsae_nn::to_vec);
             let gw = gw.unwrap_or_else(|| vec![0.0; host_grads.w[i].len()]);
             close(
                 &host_grads.weight(i).iter().copied().collect::<Vec<_>>(),
@@ -125,7 +145,7 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
                 &format!("{what}: {name} weight {i}"),
             );
             let bias = layer.bias.as_ref().expect("biases");
-            let gb = bias.val().grad(&grads).map(jsae_nn::to_vec);
+            let gb = bias.val().grad(grads).map(jsae_nn::to_vec);
             let gb = gb.unwrap_or_else(|| vec![0.0; host_grads.b[i].len()]);
             close(
                 &host_grads.b[i].to_vec(),
@@ -134,10 +154,10 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
             );
         }
     }
-    if let PolicyHead::Gaussian { .. } = head {
+    if matches!(policy.head(), PolicyHead::Gaussian { .. }) {
         let gls = log_std
             .val()
-            .grad(&grads)
+            .grad(grads)
             .map(jsae_nn::to_vec)
             .expect("log-std gradient");
         close(

@@ -170,12 +170,24 @@ impl Batch {
 
 /// Per-minibatch advantage normalisation: zero mean, unit (sample) standard deviation.
 fn normalise_advantages(adv: &mut [f32]) {
+    if let Some(stats) = advantage_stats(adv) {
+        normalise_with(adv, stats);
+    }
+}
+
+/// The mean and the sample standard deviation of `adv` (none below two values).
+fn advantage_stats(adv: &[f32]) -> Option<(f32, f32)> {
     if adv.len() < 2 {
-        return;
+        return None;
     }
     let n = adv.len() as f32;
     let mean = adv.iter().sum::<f32>() / n;
     let std = (adv.iter().map(|a| (a - mean).powi(2)).sum::<f32>() / (n - 1.0)).sqrt();
+    Some((mean, std))
+}
+
+/// `(a - mean) / (std + 1e-8)` for every advantage.
+fn normalise_with(adv: &mut [f32], (mean, std): (f32, f32)) {
     adv.iter_mut().for_each(|a| *a = (*a - mean) / (std + 1e-8));
 }
 
@@ -241,9 +253,51 @@ impl Batch {
     }
 }
 
-/// One minibatch's rows in buffers reused between minibatches (the fused update).
+/// One minibatch's rows in buffers reused between minibatches (the fused update), in parts:
+/// runs of rows that [`crate::fused::HostPolicy::loss_and_grads`] shares between threads.
 #[derive(Debug, Default)]
 pub(super) struct HostRows {
+    parts: Vec<PartRows>,
+    /// Advantages of the whole minibatch, for their normalisation.
+    adv: Vec<f32>,
+}
+
+impl HostRows {
+    /// Gathers `rows` of `batch` in `parts` runs, with `x` the batch's
+    /// [`Batch::network_input`]; advantages are normalised over all the rows.
+    pub(super) fn fill(
+        &mut self,
+        batch: &Batch,
+        x: &NetworkInput,
+        rows: &[usize],
+        norm_adv: bool,
+        parts: usize,
+    ) {
+        self.adv.clear();
+        self.adv.extend(rows.iter().map(|&r| batch.adv[r]));
+        let stats = if norm_adv {
+            advantage_stats(&self.adv)
+        } else {
+            None
+        };
+        let per = rows.len().div_ceil(parts.max(1)).max(1);
+        let count = rows.chunks(per).len();
+        self.parts.truncate(count);
+        self.parts.resize_with(count, PartRows::default);
+        for (part, rows) in self.parts.iter_mut().zip(rows.chunks(per)) {
+            part.fill(batch, x, rows, stats);
+        }
+    }
+
+    /// The parts as the fused loss reads them.
+    pub(super) fn views(&self) -> Vec<HostMinibatch<'_>> {
+        self.parts.iter().map(PartRows::view).collect()
+    }
+}
+
+/// A run of a minibatch's rows.
+#[derive(Debug, Default)]
+struct PartRows {
     x: Array2<f32>,
     sparse: SparseRows,
     sparse_input: bool,
@@ -255,9 +309,15 @@ pub(super) struct HostRows {
     old_values: Vec<f32>,
 }
 
-impl HostRows {
-    /// Gathers `rows` of `batch`, with `x` the batch's [`Batch::network_input`].
-    pub(super) fn fill(&mut self, batch: &Batch, x: &NetworkInput, rows: &[usize], norm_adv: bool) {
+impl PartRows {
+    /// Gathers `rows`; advantages normalised with `adv_stats` (mean, std) where given.
+    fn fill(
+        &mut self,
+        batch: &Batch,
+        x: &NetworkInput,
+        rows: &[usize],
+        adv_stats: Option<(f32, f32)>,
+    ) {
         match x {
             NetworkInput::Dense(x) => {
                 self.sparse_input = false;
@@ -292,13 +352,13 @@ impl HostRows {
         pick(&mut self.adv, &batch.adv);
         pick(&mut self.returns, &batch.returns);
         pick(&mut self.old_values, &batch.values);
-        if norm_adv {
-            normalise_advantages(&mut self.adv);
+        if let Some(stats) = adv_stats {
+            normalise_with(&mut self.adv, stats);
         }
     }
 
     /// The rows as the fused loss reads them.
-    pub(super) fn view(&self) -> HostMinibatch<'_> {
+    fn view(&self) -> HostMinibatch<'_> {
         HostMinibatch {
             x: if self.sparse_input {
                 HostInput::Sparse(&self.sparse)

@@ -10,7 +10,7 @@ use rand::seq::SliceRandom;
 use super::batch::{Batch, HostRows, NetworkInput};
 use super::update::EpochStats;
 use super::{Learner, UpdateMetrics};
-use crate::fused::{FusedWork, HostPolicy, LossConfig};
+use crate::fused::{FusedWork, HostPolicy, LossConfig, minibatch_parts};
 
 /// The fused path's state between updates: Adam's moments and the reused buffers.
 #[derive(Debug)]
@@ -68,6 +68,7 @@ fn epochs(
     };
     let work = state.work.get_or_insert_with(|| FusedWork::new(host));
     let mb = config.minibatch_size.min(batch.len()).max(1);
+    let parts = minibatch_parts(mb);
     let (mut grad_sum, mut grad_count) = (0.0, 0);
     let mut last = EpochStats::default();
     let mut epochs = 0;
@@ -75,8 +76,8 @@ fn epochs(
         let order = shuffled();
         let mut stats = EpochStats::default();
         for rows in order.chunks(mb) {
-            state.rows.fill(batch, x, rows, config.norm_adv);
-            let parts = host.loss_and_grads(&state.rows.view(), cfg, work);
+            state.rows.fill(batch, x, rows, config.norm_adv, parts);
+            let loss = host.loss_and_grads(&state.rows.views(), cfg, work);
             let grads = work.grads().slices();
             let norm = global_norm(&grads);
             grad_sum += f64::from(norm);
@@ -88,9 +89,9 @@ fn epochs(
             stats.add(
                 work.log_ratio(),
                 cfg.clip,
-                parts.pg,
-                parts.value,
-                parts.entropy,
+                loss.pg,
+                loss.value,
+                loss.entropy,
             );
         }
         epochs += 1;

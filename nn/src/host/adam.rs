@@ -151,6 +151,26 @@ impl pulp::WithSimd for AdamOn<'_> {
     }
 }
 
+/// `total[i] += part[i]` for every slice (the same shapes), shared between rayon's threads:
+/// gradients of a minibatch's parts added into the first part's.
+pub fn add_gradients(total: &mut [&mut [f32]], part: &[&[f32]]) {
+    let pieces: Vec<(&mut [f32], &[f32])> = total
+        .iter_mut()
+        .zip(part)
+        .flat_map(|(t, p)| t.chunks_mut(PIECE).zip(p.chunks(PIECE)))
+        .collect();
+    let add = |(t, p): (&mut [f32], &[f32])| {
+        for (t, &p) in t.iter_mut().zip(p) {
+            *t += p;
+        }
+    };
+    if pieces.len() < PARALLEL_PIECES {
+        pieces.into_iter().for_each(add);
+    } else {
+        pieces.into_par_iter().for_each(add);
+    }
+}
+
 /// The joint L2 norm of all gradients.
 pub fn global_norm(grads: &[&[f32]]) -> f32 {
     let pieces: Vec<&[f32]> = grads.iter().flat_map(|g| g.chunks(PIECE)).collect();

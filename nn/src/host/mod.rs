@@ -16,7 +16,7 @@ mod sparse;
 
 use ndarray::{Array1, Array2, ArrayView2, ArrayViewMut2, Axis};
 
-pub use adam::{HostAdam, clip_scale, global_norm};
+pub use adam::{HostAdam, add_gradients, clip_scale, global_norm};
 pub use dense::product;
 pub use sparse::{HostInput, SparseRows};
 
@@ -61,6 +61,26 @@ impl MlpWork {
         let last = self.acts.len() - 1;
         (&self.acts[last], &mut self.delta[last])
     }
+
+    /// The output (written: with [`OutputBias::ByCaller`] the caller adds the bias in place)
+    /// and the buffer of its gradient, together.
+    pub fn output_mut_and_grad(&mut self) -> (&mut Array2<f32>, &mut Array2<f32>) {
+        let last = self.acts.len() - 1;
+        (&mut self.acts[last], &mut self.delta[last])
+    }
+}
+
+/// Who handles the last layer's bias. On a wide output (thousands of logits) a pass over it
+/// costs as much as a product, so a caller that walks the output anyway (the softmax rows)
+/// can add the bias and sum its gradient in that walk instead of two more passes here.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutputBias {
+    /// [`HostMlp::forward_with`] adds it; [`HostMlp::backward_with`] sums its gradient.
+    InPass,
+    /// The forward pass leaves the output without it: the caller adds `b[last]` to every
+    /// output row before reading it (so the output is the same), and writes the bias's
+    /// gradient (the column sums of the output's gradient) into `grads.b[last]` itself.
+    ByCaller,
 }
 
 impl HostMlp {
@@ -128,6 +148,11 @@ impl HostMlp {
     /// Runs `x` (`[batch, input]`) through the layers into `work`; the output is
     /// [`MlpWork::output`].
     pub fn forward(&self, x: HostInput<'_>, work: &mut MlpWork) {
+        self.forward_with(x, work, OutputBias::InPass);
+    }
+
+    /// [`Self::forward`], with the last layer's bias added here or left to the caller.
+    pub fn forward_with(&self, x: HostInput<'_>, work: &mut MlpWork, output_bias: OutputBias) {
         let n = self.w.len();
         let rows = x.nrows();
         work.acts.resize_with(n, Default::default);
@@ -143,6 +168,9 @@ impl HostMlp {
                 (0, HostInput::Sparse(x)) => x.mul(&self.w[0], out),
                 _ => mat_mul(done[i - 1].view(), self.w[i].t(), out.view_mut()),
             }
+            if i + 1 == n && output_bias == OutputBias::ByCaller {
+                break;
+            }
             let bias = self.b[i].as_slice().unwrap_or(&[]);
             let data = out.as_slice_mut().unwrap_or(&mut []);
             // tanh between layers, none after the last
@@ -153,6 +181,19 @@ impl HostMlp {
     /// The gradients of every weight and bias into `grads` (same shapes as `self`), from the
     /// gradient the caller wrote at [`MlpWork::output_and_grad`] after [`Self::forward`] on `x`.
     pub fn backward(&self, x: HostInput<'_>, work: &mut MlpWork, grads: &mut HostMlp) {
+        self.backward_with(x, work, grads, OutputBias::InPass);
+    }
+
+    /// [`Self::backward`], with the last layer's bias gradient summed here or left as the
+    /// caller wrote it (`output_bias` as given to [`Self::forward_with`]).
+    pub fn backward_with(
+        &self,
+        x: HostInput<'_>,
+        work: &mut MlpWork,
+        grads: &mut HostMlp,
+        output_bias: OutputBias,
+    ) {
+        let last = self.w.len().saturating_sub(1);
         for i in (0..self.w.len()).rev() {
             let (lower, upper) = work.delta.split_at_mut(i);
             let delta = &upper[0];
@@ -163,6 +204,7 @@ impl HostMlp {
                 _ => mat_mul(delta.t(), work.acts[i - 1].view(), grads.w[i].view_mut()),
             }
             match (delta.as_slice(), grads.b[i].as_slice_mut()) {
+                _ if i == last && output_bias == OutputBias::ByCaller => {}
                 (Some(d), Some(gb)) => elementwise::column_sums(d, gb),
                 _ => grads.b[i].assign(&delta.sum_axis(Axis(0))),
             }
