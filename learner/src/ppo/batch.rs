@@ -19,6 +19,8 @@ use crate::policy::Policy;
 pub(super) struct Batch {
     pub(super) x_dim: usize,
     pub(super) x: Vec<f32>,
+    /// `x` as the network reads it ([`NetworkInput::new`]).
+    pub(super) input: NetworkInput,
     pub(super) actions: ActionBatch,
     pub(super) logp: Vec<f32>,
     pub(super) adv: Vec<f32>,
@@ -35,27 +37,52 @@ pub(super) struct Minibatch {
     pub(super) old_values: Tensor<1>,
 }
 
+/// The batch's large buffers, kept between updates: a batch's inputs are megabytes (2,048
+/// one-hot rows of 1,600 are 13 MB), and memory freshly mapped for each update cost more
+/// in page faults than the copies into it.
+#[derive(Debug, Default)]
+pub(super) struct BatchBuffers {
+    /// Every input of the fragments (steps, truncation bootstraps, tails).
+    all_x: Vec<f32>,
+    /// The batch's `x`, back from the last batch.
+    x: Vec<f32>,
+}
+
+impl BatchBuffers {
+    /// Takes back the buffers of a batch that is done with.
+    pub(super) fn recycle(&mut self, batch: Batch) {
+        self.x = batch.x;
+    }
+}
+
 impl Batch {
     pub(super) fn build(
         policy: &Policy,
         fragments: Vec<RolloutFragment>,
         config: &PpoConfig,
         mut scaler: Option<&mut RewardScaler>,
+        buffers: &mut BatchBuffers,
     ) -> Self {
         let x_dim = policy.input_dim();
         // One critic pass over every x, truncation bootstrap x and tail x.
-        let mut all_x = Vec::new();
+        let all_x = &mut buffers.all_x;
+        all_x.clear();
         for f in &fragments {
             all_x.extend_from_slice(&f.x);
             all_x.extend_from_slice(&f.truncated_next_x);
             all_x.extend_from_slice(&f.last_next_x);
         }
-        let inputs = NetworkInput::new(&all_x, x_dim, obs_stats(policy).as_ref());
+        let inputs = NetworkInput::new(all_x, x_dim, obs_stats(policy).as_ref());
         let values = HostPolicy::values(policy, inputs.host());
 
+        let mut x = std::mem::take(&mut buffers.x);
+        x.clear();
+        // the batch's rows among all the inputs
+        let mut rows = Vec::new();
         let mut out = Batch {
             x_dim,
-            x: Vec::new(),
+            x,
+            input: NetworkInput::Dense(Array2::zeros((0, x_dim))),
             actions: match &fragments.first().map(|f| &f.actions) {
                 Some(ActionBatch::Continuous { dim, .. }) => ActionBatch::Continuous {
                     dim: *dim,
@@ -75,6 +102,7 @@ impl Batch {
             let v = &values[offset..offset + t_len];
             let cut_v = &values[offset + t_len..offset + t_len + cuts];
             let tail_v = values[offset + t_len + cuts];
+            rows.extend(offset..offset + t_len);
             offset += t_len + cuts + 1;
             let ends: Vec<bool> = f
                 .terminated
@@ -113,6 +141,7 @@ impl Batch {
             out.returns.extend(ret);
             out.values.extend_from_slice(v);
         }
+        out.input = inputs.select(&rows);
         out
     }
 
@@ -232,6 +261,18 @@ impl NetworkInput {
         SparseRows::from_dense(view).map_or_else(|| Self::Dense(view.to_owned()), Self::Sparse)
     }
 
+    /// Rows `rows` of these inputs.
+    fn select(&self, rows: &[usize]) -> Self {
+        match self {
+            Self::Dense(x) => Self::Dense(x.select(ndarray::Axis(0), rows)),
+            Self::Sparse(x) => {
+                let mut picked = SparseRows::default();
+                picked.gather(x, rows);
+                Self::Sparse(picked)
+            }
+        }
+    }
+
     /// The inputs as the host MLP reads them.
     pub(super) fn host(&self) -> HostInput<'_> {
         match self {
@@ -246,13 +287,6 @@ fn obs_stats(policy: &Policy) -> Option<(Vec<f32>, Vec<f32>)> {
     policy.obs_stats().map(|(mean, var, _)| (mean, var))
 }
 
-impl Batch {
-    /// Every row of `x` as the network sees it (see [`NetworkInput::new`]).
-    pub(super) fn network_input(&self, policy: &Policy) -> NetworkInput {
-        NetworkInput::new(&self.x, self.x_dim, obs_stats(policy).as_ref())
-    }
-}
-
 /// One minibatch's rows in buffers reused between minibatches (the fused update), in parts:
 /// runs of rows that [`crate::fused::HostPolicy::loss_and_grads`] shares between threads.
 #[derive(Debug, Default)]
@@ -264,7 +298,7 @@ pub(super) struct HostRows {
 
 impl HostRows {
     /// Gathers `rows` of `batch` in `parts` runs, with `x` the batch's
-    /// [`Batch::network_input`]; advantages are normalised over all the rows.
+    /// [`Batch::input`]; advantages are normalised over all the rows.
     pub(super) fn fill(
         &mut self,
         batch: &Batch,

@@ -34,12 +34,12 @@ impl FusedState {
 impl Learner {
     pub(super) fn optimise_fused(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
         let mut host = HostPolicy::from_policy(&self.policy);
-        let x = batch.network_input(&self.policy);
+        let x = &batch.input;
         let (config, rng, state) = (&self.config, &mut self.rng, &mut self.fused);
         // on one of rayon's threads, so the per-minibatch joins inside stay cheap
         let metrics = rayon::scope(|_| {
             let mut order: Vec<usize> = (0..batch.len()).collect();
-            epochs(config, batch, &x, lr as f32, &mut host, state, || {
+            epochs(config, batch, x, lr as f32, &mut host, state, || {
                 order.shuffle(rng);
                 order.clone()
             })

@@ -32,7 +32,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::PpoConfig;
 use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
-use batch::Batch;
+use batch::{Batch, BatchBuffers};
 use fused_update::FusedState;
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use update::clipped_surrogate_loss;
@@ -56,6 +56,7 @@ pub struct Learner {
     inference_device: Device,
     optim: Adam,
     fused: FusedState,
+    buffers: BatchBuffers,
     rng: ChaCha8Rng,
     version: u64,
     total_env_steps: u64,
@@ -95,6 +96,7 @@ impl Learner {
             inference_device: device.device(),
             optim: Adam(optim),
             fused: FusedState::new(),
+            buffers: BatchBuffers::default(),
             rng,
             version: 0,
             total_env_steps,
@@ -273,10 +275,12 @@ impl Learner {
             fragments,
             &self.config,
             self.reward_scaler.as_mut(),
+            &mut self.buffers,
         );
         let metrics = self.optimise(&batch, lr);
         // After the update: the actors' next rollouts use these statistics with these weights.
         self.policy.update_obs_stats(&batch.x);
+        self.buffers.recycle(batch);
         self.version += 1;
         self.updates += 1;
         let episodes = std::mem::take(&mut self.episodes);
