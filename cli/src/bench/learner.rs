@@ -200,8 +200,8 @@ pub fn run(quick: bool) -> String {
     let mut out = format!(
         "PPO update, {BATCH} samples, one process; old: burn autodiff (flex, its products on the \
          gemm crate too), new: fused host \
-         update on rayon's {threads} threads (actor and critic halves, wide products, softmax \
-         rows and Adam split between them); GEMM peak {peak:.1} \
+         update on rayon's {threads} threads (minibatch rows, actor and critic halves, wide \
+         products, softmax rows and Adam split between them); GEMM peak {peak:.1} \
          GFLOP/s (512x512 f32, one thread, this run, the fused update's kernel: the gemm crate; \
          ndarray's matrixmultiply {ndarray_peak:.1}), limit {limit:.1} ({threads} threads)\n"
     );
