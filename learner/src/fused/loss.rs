@@ -4,7 +4,7 @@
 //! then runs that MLP's backward pass.
 
 use jsae_nn::host::math;
-use jsae_nn::{HostMlp, MlpWork, OutputBias};
+use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
 use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
 use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
@@ -30,6 +30,7 @@ struct ActorOut<'a> {
     grads: &'a mut HostMlp,
     log_std: &'a mut [f32],
     log_ratio: &'a mut Vec<f32>,
+    input_weights: InputWeights,
 }
 
 /// One part's sums over its samples: the surrogate, the entropy (categorical; the Gaussian's
@@ -65,7 +66,16 @@ impl HostPolicy {
         let sums: Vec<PartSums> = parts
             .par_iter()
             .zip(work.parts.par_iter_mut())
-            .map(|(mb, part)| self.part_pass(mb, cfg, bf, part))
+            .enumerate()
+            .map(|(k, (mb, part))| {
+                // one-hot inputs: the parts after the first add their few first-layer rows
+                // into the first part's gradient afterwards
+                let input_weights = match mb.x {
+                    HostInput::Sparse(_) if k > 0 => InputWeights::ByCaller,
+                    _ => InputWeights::InPass,
+                };
+                self.part_pass(mb, cfg, bf, input_weights, part)
+            })
             .collect();
         work.log_ratio.clear();
         for part in &work.parts {
@@ -73,8 +83,35 @@ impl HostPolicy {
         }
         let (first, rest) = work.parts.split_at_mut(1);
         let grads = &mut first[0].grads;
-        for other in rest.iter() {
-            jsae_nn::host::add_gradients(&mut grads.slices_mut(), &other.grads.slices());
+        // the first-layer weights' places among the parameter slices (weights and bias of
+        // each layer in turn, the actor's layers first)
+        let first_layers = [0, 2 * self.params.actor.w.len()];
+        for (mb, other) in parts.iter().skip(1).zip(rest.iter()) {
+            let sparse = match mb.x {
+                HostInput::Sparse(x) => {
+                    x.outer_add(other.actor.input_layer_grad(), &mut grads.actor.w[0]);
+                    x.outer_add(other.critic.input_layer_grad(), &mut grads.critic.w[0]);
+                    true
+                }
+                HostInput::Dense(_) => false,
+            };
+            let keep = |i: &usize| !(sparse && first_layers.contains(i));
+            let mut total: Vec<&mut [f32]> = grads
+                .slices_mut()
+                .into_iter()
+                .enumerate()
+                .filter(|(i, _)| keep(i))
+                .map(|(_, s)| s)
+                .collect();
+            let part: Vec<&[f32]> = other
+                .grads
+                .slices()
+                .into_iter()
+                .enumerate()
+                .filter(|(i, _)| keep(i))
+                .map(|(_, s)| s)
+                .collect();
+            jsae_nn::host::add_gradients(&mut total, &part);
         }
         let total = sums.iter().fold(PartSums::default(), |acc, s| PartSums {
             pg: acc.pg + s.pg,
@@ -108,12 +145,14 @@ impl HostPolicy {
         }
     }
 
-    /// One part's sums, its actor's and critic's gradients into `part`'s buffers.
+    /// One part's sums, its actor's and critic's gradients into `part`'s buffers (the first
+    /// layers' weight gradients only with [`InputWeights::InPass`]).
     fn part_pass(
         &self,
         mb: &HostMinibatch<'_>,
         cfg: LossConfig,
         bf: f32,
+        input_weights: InputWeights,
         part: &mut super::PartWork,
     ) -> PartSums {
         let super::PartWork {
@@ -129,10 +168,11 @@ impl HostPolicy {
                     grads: &mut grads.actor,
                     log_std: grads.log_std.as_slice_mut().unwrap_or(&mut []),
                     log_ratio,
+                    input_weights,
                 };
                 self.actor_pass(mb, cfg, bf, out)
             },
-            || self.critic_pass(mb, cfg, bf, critic, &mut grads.critic),
+            || self.critic_pass(mb, cfg, bf, input_weights, critic, &mut grads.critic),
         );
         PartSums { pg, entropy, value }
     }
@@ -219,7 +259,7 @@ impl HostPolicy {
             }
         }
         p.actor
-            .backward_with(mb.x, work.work, work.grads, output_bias);
+            .backward_with(mb.x, work.work, work.grads, output_bias, work.input_weights);
         work.log_std.copy_from_slice(&d_ls);
         (pg, entropy)
     }
@@ -232,6 +272,7 @@ impl HostPolicy {
         mb: &HostMinibatch<'_>,
         cfg: LossConfig,
         bf: f32,
+        input_weights: InputWeights,
         work: &mut MlpWork,
         grads: &mut HostMlp,
     ) -> f32 {
@@ -259,7 +300,9 @@ impl HostPolicy {
             };
             *g = grad * cfg.vf_coef / bf;
         }
-        self.params.critic.backward(mb.x, work, grads);
+        self.params
+            .critic
+            .backward_with(mb.x, work, grads, OutputBias::InPass, input_weights);
         v_loss
     }
 }

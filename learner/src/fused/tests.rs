@@ -191,3 +191,87 @@ fn categorical_loss_and_gradients_equal_burn_autodiff() {
         .expect("a pool of three")
         .install(|| check(PolicyHead::Categorical { n: 2100 }, false, true));
 }
+
+#[test]
+fn one_hot_inputs_split_into_parts_give_the_whole_dense_minibatchs_gradients() {
+    let device = DeviceKind::Flex.train_device();
+    let config = PpoConfig {
+        normalize_obs: false,
+        ..PpoConfig::default()
+    };
+    let (input, b, n) = (40, 30, 9);
+    let head = PolicyHead::Categorical { n };
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let policy = Policy::new(&config, input, head, &mut rng, &device);
+    let host = HostPolicy::from_policy(&policy);
+    let mut x = Array2::zeros((b, input));
+    for r in 0..b {
+        x[[r, rng.random_range(0..input)]] = 1.0;
+    }
+    let sparse = jsae_nn::SparseRows::from_dense(x.view()).expect("one-hot rows");
+    let discrete: Vec<u32> = (0..b).map(|_| rng.random_range(0..n as u32)).collect();
+    let values = |rng: &mut ChaCha8Rng| -> Vec<f32> {
+        (0..b).map(|_| rng.random_range(-1.0..1.0)).collect()
+    };
+    let (old_logp, adv, returns, old_values) = (
+        values(&mut rng).iter().map(|v| v - 2.2).collect::<Vec<_>>(),
+        values(&mut rng),
+        values(&mut rng),
+        values(&mut rng),
+    );
+    let cfg = LossConfig {
+        clip: 0.2,
+        clip_value_loss: true,
+        ent_coef: 0.05,
+        vf_coef: 0.5,
+    };
+    let whole = HostMinibatch {
+        x: HostInput::Dense(x.view()),
+        continuous: &[],
+        discrete: &discrete,
+        old_logp: &old_logp,
+        adv: &adv,
+        returns: &returns,
+        old_values: &old_values,
+    };
+    let mut work = FusedWork::new(&host);
+    let expected_loss = host
+        .loss_and_grads(std::slice::from_ref(&whole), cfg, &mut work)
+        .total;
+    let expected = work.grads().clone();
+    for split in [vec![0, 13, b], vec![0, 4, 21, b]] {
+        let parts: Vec<jsae_nn::SparseRows> = split
+            .windows(2)
+            .map(|w| {
+                let mut part = jsae_nn::SparseRows::default();
+                part.gather(&sparse, &(w[0]..w[1]).collect::<Vec<_>>());
+                part
+            })
+            .collect();
+        let minibatches: Vec<_> = split
+            .windows(2)
+            .zip(&parts)
+            .map(|(w, part)| HostMinibatch {
+                x: HostInput::Sparse(part),
+                discrete: &discrete[w[0]..w[1]],
+                old_logp: &old_logp[w[0]..w[1]],
+                adv: &adv[w[0]..w[1]],
+                returns: &returns[w[0]..w[1]],
+                old_values: &old_values[w[0]..w[1]],
+                ..whole.clone()
+            })
+            .collect();
+        let loss = host.loss_and_grads(&minibatches, cfg, &mut work).total;
+        let what = format!("{} parts", parts.len());
+        close(&[loss], &[expected_loss], &what);
+        for (k, (g, e)) in work
+            .grads()
+            .slices()
+            .iter()
+            .zip(expected.slices())
+            .enumerate()
+        {
+            close(g, e, &format!("{what}: parameter slice {k}"));
+        }
+    }
+}

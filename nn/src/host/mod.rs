@@ -62,12 +62,32 @@ impl MlpWork {
         (&self.acts[last], &mut self.delta[last])
     }
 
+    /// The loss's gradient at the first layer's output (before its tanh), after
+    /// [`HostMlp::backward_with`]: with [`InputWeights::ByCaller`] the caller multiplies the
+    /// inputs by it for the first layer's weight gradient.
+    pub fn input_layer_grad(&self) -> &Array2<f32> {
+        &self.delta[0]
+    }
+
     /// The output (written: with [`OutputBias::ByCaller`] the caller adds the bias in place)
     /// and the buffer of its gradient, together.
     pub fn output_mut_and_grad(&mut self) -> (&mut Array2<f32>, &mut Array2<f32>) {
         let last = self.acts.len() - 1;
         (&mut self.acts[last], &mut self.delta[last])
     }
+}
+
+/// Who computes the first layer's weight gradient. A minibatch split between threads has
+/// one gradient per part; for one-hot inputs, whose first layer is thousands of rows of which
+/// a minibatch touches a few hundred, each part's full-size gradient (zeroed, then added to the
+/// others') costs more than adding each part's few rows into one gradient afterwards.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum InputWeights {
+    /// [`HostMlp::backward_with`] writes it.
+    InPass,
+    /// It is left unwritten; the caller adds `x^T` [`MlpWork::input_layer_grad`] where it
+    /// wants it.
+    ByCaller,
 }
 
 /// Who handles the last layer's bias. On a wide output (thousands of logits) a pass over it
@@ -181,23 +201,26 @@ impl HostMlp {
     /// The gradients of every weight and bias into `grads` (same shapes as `self`), from the
     /// gradient the caller wrote at [`MlpWork::output_and_grad`] after [`Self::forward`] on `x`.
     pub fn backward(&self, x: HostInput<'_>, work: &mut MlpWork, grads: &mut HostMlp) {
-        self.backward_with(x, work, grads, OutputBias::InPass);
+        self.backward_with(x, work, grads, OutputBias::InPass, InputWeights::InPass);
     }
 
     /// [`Self::backward`], with the last layer's bias gradient summed here or left as the
-    /// caller wrote it (`output_bias` as given to [`Self::forward_with`]).
+    /// caller wrote it (`output_bias` as given to [`Self::forward_with`]), and the first
+    /// layer's weight gradient written here or left to the caller.
     pub fn backward_with(
         &self,
         x: HostInput<'_>,
         work: &mut MlpWork,
         grads: &mut HostMlp,
         output_bias: OutputBias,
+        input_weights: InputWeights,
     ) {
         let last = self.w.len().saturating_sub(1);
         for i in (0..self.w.len()).rev() {
             let (lower, upper) = work.delta.split_at_mut(i);
             let delta = &upper[0];
             match (i, x) {
+                (0, _) if input_weights == InputWeights::ByCaller => {}
                 (0, HostInput::Dense(x)) => mat_mul(x.t(), delta.view(), grads.w[0].view_mut()),
                 (0, HostInput::Sparse(x)) => x.outer(delta, &mut grads.w[0]),
                 // [out, in] = [out, rows] x [rows, in]

@@ -151,6 +151,16 @@ impl SparseRows {
     /// # Panics
     /// When the shapes do not fit together.
     pub(super) fn outer(&self, delta: &Array2<f32>, g: &mut Array2<f32>) {
+        g.fill(0.0);
+        self.outer_add(delta, g);
+    }
+
+    /// `g += x^T delta` (`g` is `[cols, delta's cols]`): only the rows of `g` that `x`'s
+    /// non-zero entries pick are touched.
+    ///
+    /// # Panics
+    /// When the shapes do not fit together.
+    pub fn outer_add(&self, delta: &Array2<f32>, g: &mut Array2<f32>) {
         let width = delta.ncols();
         assert!(
             delta.nrows() == self.nrows() && g.dim() == (self.cols, width),
@@ -160,7 +170,6 @@ impl SparseRows {
             delta.dim(),
             g.dim()
         );
-        g.fill(0.0);
         match (g.as_slice_mut(), delta.as_slice()) {
             (Some(g), Some(delta)) => sparse_outer(self, delta, g, width),
             _ => {
