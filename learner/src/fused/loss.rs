@@ -56,16 +56,18 @@ impl HostPolicy {
         work: &mut FusedWork,
     ) -> LossParts {
         use rayon::prelude::*;
+        assert!(!parts.is_empty(), "a minibatch of no parts");
         let rows: usize = parts.iter().map(|mb| mb.x.nrows()).sum();
         // every sample's term is divided by the whole minibatch's size
         let bf = rows.max(1) as f32;
-        work.parts.truncate(parts.len().max(1));
+        // buffers of more parts than this minibatch has are kept for later ones
         while work.parts.len() < parts.len() {
             work.parts.push(super::PartWork::new(self));
         }
+        let used = &mut work.parts[..parts.len()];
         let sums: Vec<PartSums> = parts
             .par_iter()
-            .zip(work.parts.par_iter_mut())
+            .zip(used.par_iter_mut())
             .enumerate()
             .map(|(k, (mb, part))| {
                 // one-hot inputs: the parts after the first add their few first-layer rows
@@ -78,10 +80,10 @@ impl HostPolicy {
             })
             .collect();
         work.log_ratio.clear();
-        for part in &work.parts {
+        for part in used.iter() {
             work.log_ratio.extend_from_slice(&part.log_ratio);
         }
-        let (first, rest) = work.parts.split_at_mut(1);
+        let (first, rest) = used.split_at_mut(1);
         let grads = &mut first[0].grads;
         // the first-layer weights' places among the parameter slices (weights and bias of
         // each layer in turn, the actor's layers first)

@@ -74,8 +74,9 @@ pub struct HostPolicy {
     pub tanh_mean: bool,
 }
 
-/// One minibatch, as `ppo::update` builds it (inputs already normalised, advantages
-/// normalised if configured).
+/// One minibatch, or one run of a minibatch's rows ([`minibatch_parts`]), as `ppo::update`
+/// builds it (inputs already normalised, advantages normalised over the whole minibatch if
+/// configured).
 #[derive(Debug, Clone)]
 pub struct HostMinibatch<'a> {
     /// Network inputs (normalised when the policy normalises), `[b, input]`.
@@ -155,7 +156,8 @@ impl PartWork {
 }
 
 /// Buffers of one minibatch step, kept between minibatches: each part's (the first part's
-/// gradients become the minibatch's), and `logp - old_logp` per sample.
+/// gradients become the minibatch's; a minibatch of fewer parts leaves the others' for later
+/// ones), and `logp - old_logp` per sample.
 #[derive(Debug, Clone)]
 pub struct FusedWork {
     parts: Vec<PartWork>,

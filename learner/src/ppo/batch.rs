@@ -19,7 +19,9 @@ use crate::policy::Policy;
 pub(super) struct Batch {
     pub(super) x_dim: usize,
     pub(super) x: Vec<f32>,
-    /// `x` as the network reads it ([`NetworkInput::new`]).
+    /// `x` as the network reads it ([`NetworkInput::new`]): picked from the inputs of the
+    /// critic's bootstrap pass (the steps' rows with the truncation and tail rows), so
+    /// whether it is kept sparse is decided over those.
     pub(super) input: NetworkInput,
     pub(super) actions: ActionBatch,
     pub(super) logp: Vec<f32>,
@@ -37,9 +39,10 @@ pub(super) struct Minibatch {
     pub(super) old_values: Tensor<1>,
 }
 
-/// The batch's large buffers, kept between updates: a batch's inputs are megabytes (2,048
-/// one-hot rows of 1,600 are 13 MB), and memory freshly mapped for each update cost more
-/// in page faults than the copies into it.
+/// The batch's raw input rows, kept between updates: they are megabytes (2,048 one-hot rows
+/// of 1,600 are 13 MB), and memory freshly mapped for each update cost more in page faults
+/// than the copies into it. (The network's view of them, sparse rows or normalised dense
+/// ones, is built anew: a few KB for one-hot rows.)
 #[derive(Debug, Default)]
 pub(super) struct BatchBuffers {
     /// Every input of the fragments (steps, truncation bootstraps, tails).
@@ -291,7 +294,10 @@ fn obs_stats(policy: &Policy) -> Option<(Vec<f32>, Vec<f32>)> {
 /// runs of rows that [`crate::fused::HostPolicy::loss_and_grads`] shares between threads.
 #[derive(Debug, Default)]
 pub(super) struct HostRows {
+    /// The parts' buffers; the first `used` hold the last minibatch (the others are kept for
+    /// later minibatches of more parts).
     parts: Vec<PartRows>,
+    used: usize,
     /// Advantages of the whole minibatch, for their normalisation.
     adv: Vec<f32>,
 }
@@ -315,9 +321,10 @@ impl HostRows {
             None
         };
         let per = rows.len().div_ceil(parts.max(1)).max(1);
-        let count = rows.chunks(per).len();
-        self.parts.truncate(count);
-        self.parts.resize_with(count, PartRows::default);
+        self.used = rows.chunks(per).len().max(1);
+        if self.parts.len() < self.used {
+            self.parts.resize_with(self.used, PartRows::default);
+        }
         for (part, rows) in self.parts.iter_mut().zip(rows.chunks(per)) {
             part.fill(batch, x, rows, stats);
         }
@@ -325,7 +332,7 @@ impl HostRows {
 
     /// The parts as the fused loss reads them.
     pub(super) fn views(&self) -> Vec<HostMinibatch<'_>> {
-        self.parts.iter().map(PartRows::view).collect()
+        self.parts[..self.used].iter().map(PartRows::view).collect()
     }
 }
 

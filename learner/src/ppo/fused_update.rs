@@ -68,7 +68,6 @@ fn epochs(
     };
     let work = state.work.get_or_insert_with(|| FusedWork::new(host));
     let mb = config.minibatch_size.min(batch.len()).max(1);
-    let parts = minibatch_parts(mb);
     let (mut grad_sum, mut grad_count) = (0.0, 0);
     let mut last = EpochStats::default();
     let mut epochs = 0;
@@ -76,6 +75,8 @@ fn epochs(
         let order = shuffled();
         let mut stats = EpochStats::default();
         for rows in order.chunks(mb) {
+            // a short last minibatch may be split into fewer parts
+            let parts = minibatch_parts(rows.len());
             state.rows.fill(batch, x, rows, config.norm_adv, parts);
             let loss = host.loss_and_grads(&state.rows.views(), cfg, work);
             let grads = work.grads().slices();

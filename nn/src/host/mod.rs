@@ -51,7 +51,9 @@ fn shaped(a: &mut Array2<f32>, rows: usize, cols: usize) {
 }
 
 impl MlpWork {
-    /// The output of the last [`HostMlp::forward`], `[batch, output]`.
+    /// The output of the last [`HostMlp::forward`], `[batch, output]` (without the last
+    /// layer's bias after [`HostMlp::forward_with`] with [`OutputBias::ByCaller`], until the
+    /// caller adds it).
     pub fn output(&self) -> &Array2<f32> {
         &self.acts[self.acts.len() - 1]
     }
