@@ -97,23 +97,14 @@ impl HostPolicy {
                 }
                 HostInput::Dense(_) => false,
             };
-            let keep = |i: &usize| !(sparse && first_layers.contains(i));
-            let mut total: Vec<&mut [f32]> = grads
-                .slices_mut()
-                .into_iter()
-                .enumerate()
-                .filter(|(i, _)| keep(i))
-                .map(|(_, s)| s)
-                .collect();
-            let part: Vec<&[f32]> = other
-                .grads
-                .slices()
-                .into_iter()
-                .enumerate()
-                .filter(|(i, _)| keep(i))
-                .map(|(_, s)| s)
-                .collect();
-            jsae_nn::host::add_gradients(&mut total, &part);
+            let mut part = other.grads.slices();
+            if sparse {
+                // added above, row by row; an empty slice adds nothing
+                for i in first_layers {
+                    part[i] = &[];
+                }
+            }
+            jsae_nn::host::add_gradients(&mut grads.slices_mut(), &part);
         }
         let total = sums.iter().fold(PartSums::default(), |acc, s| PartSums {
             pg: acc.pg + s.pg,

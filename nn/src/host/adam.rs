@@ -151,8 +151,9 @@ impl pulp::WithSimd for AdamOn<'_> {
     }
 }
 
-/// `total[i] += part[i]` for every slice (the same shapes), shared between rayon's threads:
-/// gradients of a minibatch's parts added into the first part's.
+/// `total[i] += part[i]` for every slice (the same shapes; an empty `part[i]` adds nothing),
+/// shared between rayon's threads: gradients of a minibatch's parts added into the first
+/// part's.
 pub fn add_gradients(total: &mut [&mut [f32]], part: &[&[f32]]) {
     let pieces: Vec<(&mut [f32], &[f32])> = total
         .iter_mut()
