@@ -39,6 +39,7 @@ rollout_len = 64
 eval_episodes = 5
 [embedding]
 pretrain_transitions = 4096
+pretrain_per_action = 0
 pretrain_epochs = 3
 [ppo]
 epochs = 4

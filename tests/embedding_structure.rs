@@ -100,6 +100,7 @@ fn structure_against_pretraining_size() {
         let mut config = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
         config.envs_per_actor = 20;
         config.embedding.pretrain_transitions = n;
+        config.embedding.pretrain_per_action = 0;
         config.embedding.pretrain_epochs = epochs;
         let (near, random) = pretrained_structure(&config);
         eprintln!(

@@ -246,6 +246,7 @@ async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
     // pre-training set and yield a snapshot
     let mut c = config(EnvName::Gridworld, Algo::Jsae, "malformed-embedder");
     c.embedding.pretrain_transitions = 512;
+    c.embedding.pretrain_per_action = 0;
     c.embedding.pretrain_epochs = 1;
     let embedder = start_embedder(&c).await;
     let mut client = pb::embedder_client::EmbedderClient::connect(embedder.url.clone())
@@ -339,6 +340,7 @@ async fn health_answers_serving_and_reflection_lists_the_services() {
 async fn a_restarted_embedder_continues_its_version_line() {
     let mut c = config(EnvName::Gridworld, Algo::Jsae, "restart-embedder");
     c.embedding.pretrain_transitions = 512;
+    c.embedding.pretrain_per_action = 0;
     c.embedding.pretrain_epochs = 1;
     let options = EmbedderOptions {
         checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),

@@ -153,10 +153,7 @@ fn stepping_loop(
         Duration::from_millis(config.policy_wait_ms),
     );
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
-    let random_share = config
-        .embedding
-        .pretrain_transitions
-        .div_ceil(config.actors.max(1)) as u64;
+    let random_share = config.pretrain_budget().div_ceil(config.actors.max(1)) as u64;
     loop {
         report.env_steps = worker.env_steps();
         if stop.load(Ordering::Relaxed) {

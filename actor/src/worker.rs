@@ -382,19 +382,59 @@ impl ActorWorker {
     }
 
     /// Runs `episodes` evaluation episodes with the deterministic policy (mean action, then
-    /// f) on fresh environments seeded with `seed`.
+    /// f) on fresh environments seeded with `seed`, and as many with sampled actions from the
+    /// same start states (the policy's own randomness seeded from `seed` too).
     pub fn evaluate(&mut self, episodes: usize, seed: u64) -> EvalReport {
+        EvalReport {
+            policy_version: self.weights.policy_version().unwrap_or(0),
+            embedding_version: self.embedding_version(),
+            episodes: self.eval_episodes(episodes, seed, None),
+            stochastic: self.eval_episodes(
+                episodes,
+                seed,
+                Some(ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_5a3e)),
+            ),
+        }
+    }
+
+    /// The greedy discrete action of a policy acting in the action-embedding space (the
+    /// most likely action, [`jsae_agent::greedy`]) for the one mean embedding in
+    /// `policy_action`; None where the greedy action is the policy's own (continuous actions,
+    /// a categorical head) or when not `greedy`.
+    fn greedy_discrete(&mut self, greedy: bool, policy_action: &ActionBatch) -> Option<u32> {
+        let ActionBatch::Continuous { data: mean, .. } = policy_action else {
+            return None;
+        };
+        if !greedy
+            || self.actions.num_discrete().is_none()
+            || !self.config.algo.representation().decodes_actions()
+        {
+            return None;
+        }
+        let std: Vec<f32> = self
+            .weights
+            .acting_policy()
+            .log_std_values()
+            .iter()
+            .map(|l| l.exp())
+            .collect();
+        jsae_agent::greedy::modal_action(self.weights.embedding_mut()?, mean, &std)
+    }
+
+    /// Evaluation episodes: deterministic without `sampling`, else actions drawn with it.
+    fn eval_episodes(
+        &mut self,
+        episodes: usize,
+        seed: u64,
+        mut sampling: Option<ChaCha8Rng>,
+    ) -> Vec<EpisodeStat> {
         let mut env = match self.eval_env.take() {
             Some(env) => env,
             None => unreachable!("evaluate puts the environment back"),
         };
         let mut env_rng = ChaCha8Rng::seed_from_u64(seed);
         let head_space = self.weights.acting_policy().head().action_space();
-        let mut report = EvalReport {
-            policy_version: self.weights.policy_version().unwrap_or(0),
-            embedding_version: self.embedding_version(),
-            episodes: Vec::with_capacity(episodes),
-        };
+        let mut stats = Vec::with_capacity(episodes);
         let (mut state, mut x, mut logp) =
             (StateBatch::empty(&self.states), Vec::new(), Vec::new());
         let mut policy_action = ActionBatch::empty(&head_space);
@@ -408,14 +448,21 @@ impl ActorWorker {
                 policy_action.clear();
                 env_action.clear();
                 self.policy_inputs(&state, &mut x);
+                let (deterministic, rng) = match sampling.as_mut() {
+                    Some(rng) => (false, rng),
+                    None => (true, &mut self.rng),
+                };
                 self.weights.acting_policy().act(
                     &x,
-                    true,
-                    &mut self.rng,
+                    deterministic,
+                    rng,
                     &mut policy_action,
                     &mut logp,
                 );
-                self.env_actions(&policy_action, &mut env_action);
+                match self.greedy_discrete(sampling.is_none(), &policy_action) {
+                    Some(a) => env_action.extend_from(&ActionBatch::Discrete(vec![a])),
+                    None => self.env_actions(&policy_action, &mut env_action),
+                }
                 let step = match &env_action {
                     ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[0])),
                     ActionBatch::Continuous { data, .. } => env.step(ActionRef::Continuous(data)),
@@ -423,7 +470,7 @@ impl ActorWorker {
                 run.ret += step.reward;
                 run.len += 1;
                 if step.terminated || step.truncated {
-                    report.episodes.push(EpisodeStat {
+                    stats.push(EpisodeStat {
                         ret: run.ret,
                         length: run.len,
                         success: env.has_success().then_some(step.success),
@@ -433,6 +480,6 @@ impl ActorWorker {
             }
         }
         self.eval_env = Some(env);
-        report
+        stats
     }
 }

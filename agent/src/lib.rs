@@ -7,6 +7,8 @@
 
 #![forbid(unsafe_code)]
 
+pub mod greedy;
+
 use burn::tensor::Device;
 use jsae_embedder::Embedding;
 use jsae_learner::{Policy, policy_shape};

@@ -46,6 +46,28 @@ pub enum Command {
         #[arg(long, default_value_t = 16)]
         envs: usize,
     },
+    /// Run an experiment grid (envs x algos x seeds x setting overrides, from a sweep file)
+    /// into one results folder, N runs at a time; finished runs are skipped, so a stopped
+    /// sweep goes on when started again. Then `jsae report` the folder.
+    Sweep {
+        /// The sweep file (TOML; README: Experiments).
+        file: PathBuf,
+        /// Runs at a time [default: the machine's cores].
+        #[arg(long)]
+        jobs: Option<usize>,
+        /// The results folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Summarise a results folder over seeds: mean with a 95% bootstrap interval, IQM, steps
+    /// to the sweep's threshold, wall time; writes report.md, report.json and figures/.
+    Report {
+        /// The results folder (of `jsae sweep`).
+        dir: PathBuf,
+        /// Where report.md, report.json and figures/ go [default: DIR].
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// Draw the plots of a run directory (one the services wrote, for example by hand).
     Plot {
         /// The run directory (holding config.toml and metrics.csv).
@@ -266,6 +288,10 @@ pub fn run(command: Command) -> ExitCode {
                     ExitCode::FAILURE
                 }
             }
+        }
+        Command::Sweep { file, jobs, out } => crate::experiments::sweep(&file, jobs, &out),
+        Command::Report { dir, out } => {
+            crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))
         }
         Command::Plot { out } => {
             let run = RunDir::new(&out);

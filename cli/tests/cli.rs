@@ -35,7 +35,7 @@ fn a_short_run_prints_its_summary() {
     let cfg = dir.with_extension("toml");
     std::fs::write(
         &cfg,
-        "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\n[embedding]\npretrain_transitions = 1000\npretrain_epochs = 2\n[ppo]\nepochs = 1\n",
+        "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\n[embedding]\npretrain_transitions = 1000\npretrain_per_action = 0\npretrain_epochs = 2\n[ppo]\nepochs = 1\n",
     )
     .expect("config");
     let out = jsae(&[

@@ -132,7 +132,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
     /// continuous updates every `update_every` transitions) and returns the new snapshot.
     pub fn poll(&mut self) -> Result<Option<EmbeddingSnapshot>, nn::RecordError> {
         if !self.pretrained() {
-            if self.replay.len() < self.config.pretrain_transitions {
+            if self.replay.len() < self.config.pretrain_budget(self.model.action_space()) {
                 return Ok(None);
             }
             self.pretrain();
@@ -252,6 +252,7 @@ mod tests {
         let data = ring(512, &mut rng);
         let config = EmbeddingConfig {
             pretrain_transitions: 512,
+            pretrain_per_action: 0,
             pretrain_epochs: 60,
             batch_size: 128,
             ..EmbeddingConfig::default()
@@ -313,6 +314,7 @@ mod tests {
         };
         let config = EmbeddingConfig {
             pretrain_transitions: n,
+            pretrain_per_action: 0,
             pretrain_epochs: 40,
             batch_size: 128,
             normalize_states,

@@ -44,6 +44,13 @@ pub struct Summary {
     pub eval_success_rate: Option<f64>,
     /// Mean evaluation episode length.
     pub eval_length_mean: f64,
+    /// Mean return of as many evaluation episodes with sampled actions, from the same start
+    /// states (null when not run).
+    #[serde(default)]
+    pub eval_stochastic_return_mean: Option<f64>,
+    /// Their success rate.
+    #[serde(default)]
+    pub eval_stochastic_success_rate: Option<f64>,
     /// Policy updates.
     pub learner_updates: u64,
     /// Mean policy lag of accepted fragments.
@@ -62,6 +69,31 @@ pub struct Summary {
     pub device: String,
 }
 
+/// Return, success and length statistics of some evaluation episodes.
+struct EpisodeSummary {
+    return_mean: f64,
+    return_std: f64,
+    success_rate: Option<f64>,
+    length_mean: f64,
+}
+
+impl EpisodeSummary {
+    fn of(episodes: &[jsae_proto::EpisodeStat]) -> Self {
+        let n = episodes.len().max(1) as f64;
+        let mean = episodes.iter().map(|e| e.ret).sum::<f64>() / n;
+        let var = episodes.iter().map(|e| (e.ret - mean).powi(2)).sum::<f64>() / n;
+        let successes: Vec<bool> = episodes.iter().filter_map(|e| e.success).collect();
+        let success_rate = (!successes.is_empty())
+            .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
+        Self {
+            return_mean: mean,
+            return_std: var.sqrt(),
+            success_rate,
+            length_mean: episodes.iter().map(|e| f64::from(e.length)).sum::<f64>() / n,
+        }
+    }
+}
+
 impl Summary {
     /// The summary of a finished run.
     #[allow(clippy::too_many_arguments)]
@@ -75,23 +107,8 @@ impl Summary {
         dropped: (u64, u64),
         policy_version: u64,
     ) -> Self {
-        let n = eval.episodes.len();
-        let mean = eval.episodes.iter().map(|e| e.ret).sum::<f64>() / n.max(1) as f64;
-        let var = eval
-            .episodes
-            .iter()
-            .map(|e| (e.ret - mean).powi(2))
-            .sum::<f64>()
-            / n.max(1) as f64;
-        let successes: Vec<bool> = eval.episodes.iter().filter_map(|e| e.success).collect();
-        let success = (!successes.is_empty())
-            .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
-        let length = eval
-            .episodes
-            .iter()
-            .map(|e| f64::from(e.length))
-            .sum::<f64>()
-            / n.max(1) as f64;
+        let det = EpisodeSummary::of(&eval.episodes);
+        let stoch = (!eval.stochastic.is_empty()).then(|| EpisodeSummary::of(&eval.stochastic));
         Self {
             env: meta.env.clone(),
             algo: meta.algo.clone(),
@@ -99,11 +116,13 @@ impl Summary {
             env_steps,
             wall_seconds,
             steps_per_second: env_steps as f64 / wall_seconds.max(1e-9),
-            eval_episodes: n,
-            eval_return_mean: mean,
-            eval_return_std: var.sqrt(),
-            eval_success_rate: success,
-            eval_length_mean: length,
+            eval_episodes: eval.episodes.len(),
+            eval_return_mean: det.return_mean,
+            eval_return_std: det.return_std,
+            eval_success_rate: det.success_rate,
+            eval_length_mean: det.length_mean,
+            eval_stochastic_return_mean: stoch.as_ref().map(|s| s.return_mean),
+            eval_stochastic_success_rate: stoch.and_then(|s| s.success_rate),
             learner_updates: updates,
             policy_lag_mean: lag.mean(),
             policy_lag_max: lag.max,

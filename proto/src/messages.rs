@@ -120,13 +120,16 @@ pub struct PolicySnapshot {
     pub bytes: Vec<u8>,
 }
 
-/// Deterministic evaluation episodes run by an actor at the end of a run, actor -> learner.
+/// Evaluation episodes run by an actor at the end of a run, actor -> learner.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct EvalReport {
     /// Policy version evaluated.
     pub policy_version: u64,
     /// Embedding version evaluated (0 without embeddings).
     pub embedding_version: u64,
-    /// One entry per episode.
+    /// One entry per episode of the deterministic policy (mean action, then f).
     pub episodes: Vec<EpisodeStat>,
+    /// One entry per episode with sampled actions, from the same start states (empty when
+    /// not run).
+    pub stochastic: Vec<EpisodeStat>,
 }

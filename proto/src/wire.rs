@@ -229,6 +229,7 @@ impl EvalReport {
             embedding_version: self.embedding_version,
             episodes: self.episodes.iter().map(Into::into).collect(),
             request_id,
+            stochastic_episodes: self.stochastic.iter().map(Into::into).collect(),
         }
     }
 
@@ -242,6 +243,7 @@ impl EvalReport {
                 policy_version: r.policy_version,
                 embedding_version: r.embedding_version,
                 episodes: episodes(r.episodes)?,
+                stochastic: episodes(r.stochastic_episodes)?,
             },
             r.request_id,
         ))

@@ -27,6 +27,7 @@ pub fn small_config(env: EnvName, algo: Algo, seed: u64, out: PathBuf) -> TrainC
     c.rollout_len = 64;
     c.eval_episodes = 3;
     c.embedding.pretrain_transitions = 4_096;
+    c.embedding.pretrain_per_action = 0;
     c.embedding.pretrain_epochs = 3;
     c.ppo.epochs = 2;
     c.out = out;

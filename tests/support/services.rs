@@ -140,6 +140,7 @@ pub fn config(env: EnvName, algo: Algo, name: &str) -> TrainConfig {
     c.envs_per_actor = 4;
     c.rollout_len = 32;
     c.embedding.pretrain_transitions = 1_024;
+    c.embedding.pretrain_per_action = 0;
     c.embedding.pretrain_epochs = 2;
     c.embedding.update_every = 2_048;
     c.embedding.update_steps = 5;

@@ -92,7 +92,7 @@ pub(crate) fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKi
     let mut worker = ActorWorker::new(&c, 0, device).expect("benchmark environments need no data");
     let (s, a) = (worker.state_space().clone(), worker.action_space().clone());
     let mut emb = EmbedderTrainer::new(c.embedding.clone(), &s, &a, c.seed, device);
-    let rollout = worker.collect(c.embedding.pretrain_transitions.div_ceil(envs));
+    let rollout = worker.collect(c.pretrain_budget().div_ceil(envs));
     let _ = emb.ingest(&rollout.transitions);
     if let Ok(Some(snap)) = emb.poll() {
         let _ = worker.set_embedding(&snap);
@@ -117,6 +117,7 @@ fn time_collect(worker: &mut ActorWorker, envs: usize, repeats: usize) -> f64 {
 pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
     let mut config = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
     config.embedding.pretrain_transitions = 2_000;
+    config.embedding.pretrain_per_action = 0;
     config.embedding.pretrain_epochs = 2;
     let repeats = if quick { 200 } else { 2_000 };
     let mut w1 = trained_worker(&config, 1, device);

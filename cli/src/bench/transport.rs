@@ -211,6 +211,7 @@ pub fn measure(quick: bool) -> anyhow::Result<(TransportRate, TransportRate)> {
     let mut embed_cfg = base_config();
     embed_cfg.embedding.pretrain_transitions = (n_batches + 2) * embed_cfg.round_steps() + 1;
     embed_cfg.embedding.replay_capacity = embed_cfg.embedding.pretrain_transitions;
+    embed_cfg.embedding.pretrain_per_action = 0;
     let mut learn_cfg = base_config();
     learn_cfg.actors = 1 << 20; // a batch the learner never completes
     let batches = transition_batches(&embed_cfg, n_batches);

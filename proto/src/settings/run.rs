@@ -445,14 +445,29 @@ impl TrainConfig {
         self.ppo.validate().map_err(ConfigError::Invalid)?;
         if self.algo.representation().needs_embedder() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;
-            if self.embedding.pretrain_transitions as u64 >= self.env_steps {
+            let budget = self.pretrain_budget();
+            if budget as u64 >= self.env_steps {
                 return bad(format!(
-                    "env_steps ({}) must exceed embedding.pretrain_transitions ({})",
-                    self.env_steps, self.embedding.pretrain_transitions
+                    "env_steps ({}) must exceed the pre-training transitions ({budget}: \
+                     embedding.pretrain_transitions, or pretrain_per_action x actions)",
+                    self.env_steps
+                ));
+            }
+            if self.embedding.replay_capacity < budget {
+                return bad(format!(
+                    "embedding.replay_capacity ({}) must hold the pre-training transitions \
+                     ({budget})",
+                    self.embedding.replay_capacity
                 ));
             }
         }
         Ok(())
+    }
+
+    /// Random transitions the embedder pre-trains on in this run (the embedding settings'
+    /// budget for this environment's action space).
+    pub fn pretrain_budget(&self) -> usize {
+        self.embedding.pretrain_budget(&self.spaces().1)
     }
 
     /// The configuration as TOML (what `config.toml` holds).
@@ -503,5 +518,17 @@ mod tests {
         );
         let c = TrainConfig::defaults(EnvName::Gridworld, Algo::Ra);
         assert!(c.validate().is_err());
+        // 2^13 actions x 25 transitions each do not fit the default replay buffer.
+        let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
+        c.environment.gridworld.actuators = 13;
+        c.env_steps = 1_000_000;
+        let reason = c.validate().expect_err("too small a buffer").to_string();
+        assert!(
+            reason.contains("replay_capacity") && reason.contains("204800"),
+            "{reason}"
+        );
+        c.environment.gridworld.actuators = 12;
+        assert_eq!(c.pretrain_budget(), 102_400);
+        assert!(c.validate().is_ok());
     }
 }

@@ -1,0 +1,100 @@
+//! The deterministic (greedy) action of a policy that acts in an action-embedding space
+//! over discrete actions: the action the policy chooses most often, not the decode of its
+//! mean.
+//!
+//! The policy is a Gaussian N(mu(s), sigma^2) over E and f maps an embedding to the action
+//! of the nearest g(a); the probability of action a is the Gaussian's mass on a's Voronoi
+//! cell. Decoding the mean picks the cell that holds mu, which need not be the likely one:
+//! mu can sit in a thin cell between clusters of actions that each hold more mass. In the
+//! gridworld that cell can be an action that runs into a wall, and then the same state gives
+//! the same action for the rest of the episode, while the sampled policy solves the task
+//! (issue 17: 20 identical evaluation episodes stuck for 150 steps on one of two runs).
+//!
+//! [`modal_action`] estimates the most likely action from [`SAMPLES`] fixed draws
+//! (common random numbers, the same for every state, so the greedy policy is a function of
+//! the state): mu + sigma * z_k for the fixed z_k, each decoded by f, and the action decoded
+//! most often wins; a tie goes to the action decoded first, and the mean itself is the first
+//! draw (z_0 = 0). The categorical PPO baseline's greedy action is the most likely action
+//! too, so both are evaluated alike.
+
+use std::collections::HashMap;
+use std::sync::OnceLock;
+
+use jsae_embedder::Embedding;
+use jsae_proto::ActionBatch;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+
+/// Draws per greedy action (the mean included).
+pub const SAMPLES: usize = 256;
+
+/// The fixed standard-normal draws for `dim` dimensions, `[SAMPLES, dim]`, row 0 zero.
+fn draws(dim: usize) -> Vec<f32> {
+    static CACHE: OnceLock<std::sync::Mutex<HashMap<usize, Vec<f32>>>> = OnceLock::new();
+    let cache = CACHE.get_or_init(Default::default);
+    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
+    cache
+        .entry(dim)
+        .or_insert_with(|| {
+            let mut rng = ChaCha8Rng::seed_from_u64(0x6eed_7a11);
+            let mut z = vec![0.0; dim];
+            z.extend((dim..SAMPLES * dim).map(|_| -> f32 { StandardNormal.sample(&mut rng) }));
+            z
+        })
+        .clone()
+}
+
+/// The policy's most likely discrete action at mean embedding `mean` with per-dimension
+/// standard deviations `std`, decoded by `embedding`'s f (see the module's note).
+pub fn modal_action(embedding: &mut Embedding, mean: &[f32], std: &[f32]) -> Option<u32> {
+    let dim = mean.len();
+    let z = draws(dim);
+    let points: Vec<f32> = z
+        .chunks_exact(dim)
+        .flat_map(|zk| zk.iter().zip(mean).zip(std).map(|((z, m), s)| m + s * z))
+        .collect();
+    let mut decoded = ActionBatch::Discrete(Vec::with_capacity(SAMPLES));
+    embedding.decode(&points, &mut decoded);
+    match decoded {
+        ActionBatch::Discrete(actions) => most_frequent(&actions),
+        ActionBatch::Continuous { .. } => None,
+    }
+}
+
+/// The value that occurs most often; of equally frequent ones, the one that occurs first.
+pub fn most_frequent(actions: &[u32]) -> Option<u32> {
+    // (count, first position) per action.
+    let mut tally: HashMap<u32, (usize, usize)> = HashMap::new();
+    for (k, &a) in actions.iter().enumerate() {
+        tally.entry(a).or_insert((0, k)).0 += 1;
+    }
+    tally
+        .into_iter()
+        .max_by(|(_, (c1, k1)), (_, (c2, k2))| c1.cmp(c2).then(k2.cmp(k1)))
+        .map(|(a, _)| a)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_most_frequent_wins_and_ties_go_to_the_first() {
+        assert_eq!(most_frequent(&[7, 3, 3, 9, 3, 7]), Some(3));
+        assert_eq!(most_frequent(&[7, 3, 3, 7]), Some(7));
+        assert_eq!(most_frequent(&[5]), Some(5));
+        assert_eq!(most_frequent(&[]), None);
+    }
+
+    #[test]
+    fn the_draws_are_fixed_and_start_at_the_mean() {
+        let z = draws(3);
+        assert_eq!(z.len(), SAMPLES * 3);
+        assert_eq!(&z[..3], &[0.0; 3]);
+        assert_eq!(z, draws(3));
+        let mean = z[3..].iter().sum::<f32>() / (z.len() - 3) as f32;
+        let var = z[3..].iter().map(|v| v * v).sum::<f32>() / (z.len() - 3) as f32;
+        assert!(mean.abs() < 0.15 && (var - 1.0).abs() < 0.2, "{mean} {var}");
+    }
+}

@@ -1,0 +1,220 @@
+//! Running a sweep: every run of the grid as its own `jsae train` process, `jobs` at a
+//! time, into one results folder. A run whose `summary.json` exists is finished and skipped,
+//! so an interrupted sweep goes on where it stopped when started again.
+//!
+//! The results folder holds `sweep.toml` (the sweep file the runs came from), `configs/`
+//! (each run's `--config` file), `logs/` (each run's output) and `runs/` (the run
+//! directories; see [`RunSpec::relative_dir`]).
+
+use std::collections::VecDeque;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::Mutex;
+use std::time::Instant;
+
+use jsae_proto::run_dir::RunDir;
+
+use crate::grid::{Grid, RunSpec};
+
+/// Why a sweep could not start (a run that fails is reported in [`SweepOutcome`] instead).
+#[derive(Debug, thiserror::Error)]
+pub enum SweepError {
+    /// The results folder could not be written.
+    #[error("{path}: {source}")]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> SweepError + '_ {
+    move |source| SweepError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// How to run a sweep.
+#[derive(Debug, Clone)]
+pub struct SweepOptions {
+    /// The `jsae` executable each run is started with.
+    pub exe: PathBuf,
+    /// Runs at a time.
+    pub jobs: usize,
+    /// The results folder.
+    pub out: PathBuf,
+}
+
+/// What a sweep did.
+#[derive(Debug, Default)]
+pub struct SweepOutcome {
+    /// Runs trained now.
+    pub trained: usize,
+    /// Runs already finished before (skipped).
+    pub skipped: usize,
+    /// Runs that failed, with the log to read.
+    pub failed: Vec<(RunSpec, PathBuf)>,
+}
+
+/// Where one run's files go inside the results folder.
+#[derive(Debug, Clone)]
+pub struct RunPaths {
+    /// The run directory.
+    pub dir: PathBuf,
+    /// Its `--config` file.
+    pub config: PathBuf,
+    /// Its output.
+    pub log: PathBuf,
+}
+
+impl RunPaths {
+    /// The paths of `run` under the results folder `out`.
+    pub fn new(out: &Path, run: &RunSpec) -> Self {
+        let rel = run.relative_dir();
+        let under = |top: &str, ext: &str| {
+            let mut p = out.join(top).join(rel.strip_prefix("runs").unwrap_or(&rel));
+            p.set_extension(ext);
+            p
+        };
+        Self {
+            dir: out.join(&rel),
+            config: under("configs", "toml"),
+            log: under("logs", "log"),
+        }
+    }
+
+    /// Whether the run finished (its summary is there and reads).
+    pub fn finished(&self) -> bool {
+        let summary = RunDir::new(&self.dir).summary_json();
+        std::fs::read_to_string(summary)
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some()
+    }
+}
+
+/// Threads the learner of one run may use when `jobs` runs share this machine's cores.
+fn threads_per_run(jobs: usize) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    (cores / jobs.max(1)).max(1)
+}
+
+/// Runs every unfinished run of `grid`; `note` hears one line per started and ended run.
+pub fn run_sweep(
+    grid: &Grid,
+    sweep_text: &str,
+    options: &SweepOptions,
+    note: &(dyn Fn(&str) + Sync),
+) -> Result<SweepOutcome, SweepError> {
+    let out = &options.out;
+    std::fs::create_dir_all(out).map_err(io(out))?;
+    let sweep_file = out.join("sweep.toml");
+    std::fs::write(&sweep_file, sweep_text).map_err(io(&sweep_file))?;
+    let mut outcome = SweepOutcome::default();
+    let mut queue = VecDeque::new();
+    for run in grid.runs() {
+        let paths = RunPaths::new(out, &run);
+        if paths.finished() {
+            outcome.skipped += 1;
+            continue;
+        }
+        if paths.dir.exists() {
+            // An interrupted run: start it again from nothing.
+            std::fs::remove_dir_all(&paths.dir).map_err(io(&paths.dir))?;
+        }
+        for file in [&paths.config, &paths.log] {
+            if let Some(parent) = file.parent() {
+                std::fs::create_dir_all(parent).map_err(io(parent))?;
+            }
+        }
+        let config = toml::to_string(&grid.run_config(&run)).unwrap_or_default();
+        std::fs::write(&paths.config, config).map_err(io(&paths.config))?;
+        queue.push_back((run, paths));
+    }
+    let total = queue.len();
+    note(&format!(
+        "{total} runs to train, {} finished before; {} at a time",
+        outcome.skipped, options.jobs
+    ));
+    let queue = Mutex::new(queue);
+    let results = Mutex::new(Vec::new());
+    let threads = threads_per_run(options.jobs);
+    std::thread::scope(|scope| {
+        for _ in 0..options.jobs.max(1) {
+            scope.spawn(|| {
+                loop {
+                    let next = queue.lock().map(|mut q| q.pop_front()).ok().flatten();
+                    let Some((run, paths)) = next else { break };
+                    let started = Instant::now();
+                    let ok = train_one(&options.exe, &paths, threads);
+                    let mut done = results.lock().unwrap_or_else(|e| e.into_inner());
+                    done.push((run.clone(), paths.clone(), ok));
+                    note(&format!(
+                        "[{}/{total}] {} {} in {:.0} s",
+                        done.len(),
+                        if ok { "finished" } else { "FAILED" },
+                        run.relative_dir().display(),
+                        started.elapsed().as_secs_f64()
+                    ));
+                }
+            });
+        }
+    });
+    for (run, paths, ok) in results.into_inner().unwrap_or_else(|e| e.into_inner()) {
+        if ok {
+            outcome.trained += 1;
+        } else {
+            outcome.failed.push((run, paths.log));
+        }
+    }
+    Ok(outcome)
+}
+
+/// Trains one run as a `jsae train` process; true when it finished with a summary.
+fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
+    let Ok(log) = std::fs::File::create(&paths.log) else {
+        return false;
+    };
+    let Ok(log2) = log.try_clone() else {
+        return false;
+    };
+    let status = Command::new(exe)
+        .arg("train")
+        .arg("--config")
+        .arg(&paths.config)
+        .arg("--out")
+        .arg(&paths.dir)
+        .arg("--quiet")
+        .env("RAYON_NUM_THREADS", threads.to_string())
+        .stdin(Stdio::null())
+        .stdout(log)
+        .stderr(log2)
+        .status();
+    matches!(status, Ok(s) if s.success()) && paths.finished()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jsae_proto::settings::{Algo, EnvName};
+
+    #[test]
+    fn run_files_live_beside_each_other() {
+        let run = RunSpec {
+            setting: "a9".into(),
+            env: EnvName::Slotmachine,
+            algo: Algo::Ppo,
+            seed: 7,
+        };
+        let p = RunPaths::new(Path::new("/r"), &run);
+        assert_eq!(p.dir, Path::new("/r/runs/a9/slotmachine-ppo-seed7"));
+        assert_eq!(
+            p.config,
+            Path::new("/r/configs/a9/slotmachine-ppo-seed7.toml")
+        );
+        assert_eq!(p.log, Path::new("/r/logs/a9/slotmachine-ppo-seed7.log"));
+        assert!(!p.finished());
+    }
+}
