@@ -3,6 +3,7 @@
 //! embedder and embedded rollout fragments for the learner. Weights are swapped in whole
 //! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
 
+use jsae_agent::greedy::GreedyDecode;
 use jsae_agent::{SwapError, Weights};
 use jsae_embedder::Embedding;
 use jsae_learner::Policy;
@@ -59,6 +60,7 @@ pub struct ActorWorker {
     visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
+    greedy: GreedyDecode,
 }
 
 impl std::fmt::Debug for ActorWorker {
@@ -110,6 +112,7 @@ impl ActorWorker {
             weights,
             current,
             env_steps: 0,
+            greedy: GreedyDecode::default(),
         })
     }
 
@@ -157,6 +160,12 @@ impl ActorWorker {
     pub fn set_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), WorkerError> {
         self.weights.set_embedding(snapshot)?;
         Ok(())
+    }
+
+    /// How the deterministic evaluation decodes a policy over action embeddings into a
+    /// discrete action (default: f of the mean).
+    pub fn set_greedy_decode(&mut self, decode: GreedyDecode) {
+        self.greedy = decode;
     }
 
     /// Swaps in another policy version (the current one is ignored).
@@ -397,15 +406,16 @@ impl ActorWorker {
         }
     }
 
-    /// The greedy discrete action of a policy acting in the action-embedding space (the
-    /// most likely action, [`jsae_agent::greedy`]) for the one mean embedding in
-    /// `policy_action`; None where the greedy action is the policy's own (continuous actions,
-    /// a categorical head) or when not `greedy`.
+    /// The most likely discrete action ([`jsae_agent::greedy`]) of a policy acting in the
+    /// action-embedding space, for the one mean embedding in `policy_action`, when the
+    /// worker's greedy decode is the mode; None otherwise (not `greedy`, the mean decode,
+    /// continuous actions, a categorical head): then f decodes the mean as in training.
     fn greedy_discrete(&mut self, greedy: bool, policy_action: &ActionBatch) -> Option<u32> {
         let ActionBatch::Continuous { data: mean, .. } = policy_action else {
             return None;
         };
         if !greedy
+            || self.greedy == GreedyDecode::Mean
             || self.actions.num_discrete().is_none()
             || !self.config.algo.representation().decodes_actions()
         {

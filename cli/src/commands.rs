@@ -68,6 +68,9 @@ pub enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Evaluate a run's newest checkpoints (or a given policy checkpoint) with the
+    /// deterministic and the sampled policy; prints JSON.
+    Eval(crate::eval::EvalArgs),
     /// Draw the plots of a run directory (one the services wrote, for example by hand).
     Plot {
         /// The run directory (holding config.toml and metrics.csv).
@@ -290,6 +293,7 @@ pub fn run(command: Command) -> ExitCode {
             }
         }
         Command::Sweep { file, jobs, out } => crate::experiments::sweep(&file, jobs, &out),
+        Command::Eval(args) => crate::eval::main(&args),
         Command::Report { dir, out } => {
             crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))
         }

@@ -4,7 +4,8 @@
 //! deterministic mode), `launch` (the services started as processes on loopback), `progress`
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
-//! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
+//! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), `eval`
+//! (`jsae eval`, a run's checkpoints evaluated again), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
 //! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
 //! services themselves (`jsae embedder|learner|actor|recommender`).
 
@@ -12,6 +13,7 @@
 
 pub mod bench;
 pub mod commands;
+pub mod eval;
 pub mod experiments;
 pub mod health;
 pub mod launch;

@@ -31,4 +31,4 @@ pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };
-pub use record::{RunMeta, Summary};
+pub use record::{EvalStats, RunMeta, Summary};

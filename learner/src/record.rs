@@ -70,15 +70,23 @@ pub struct Summary {
 }
 
 /// Return, success and length statistics of some evaluation episodes.
-struct EpisodeSummary {
-    return_mean: f64,
-    return_std: f64,
-    success_rate: Option<f64>,
-    length_mean: f64,
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct EvalStats {
+    /// Episodes.
+    pub episodes: usize,
+    /// Mean return.
+    pub return_mean: f64,
+    /// The returns' standard deviation.
+    pub return_std: f64,
+    /// Success rate (None where the environment has no success notion).
+    pub success_rate: Option<f64>,
+    /// Mean episode length.
+    pub length_mean: f64,
 }
 
-impl EpisodeSummary {
-    fn of(episodes: &[jsae_proto::EpisodeStat]) -> Self {
+impl EvalStats {
+    /// The statistics of `episodes`.
+    pub fn of(episodes: &[jsae_proto::EpisodeStat]) -> Self {
         let n = episodes.len().max(1) as f64;
         let mean = episodes.iter().map(|e| e.ret).sum::<f64>() / n;
         let var = episodes.iter().map(|e| (e.ret - mean).powi(2)).sum::<f64>() / n;
@@ -86,6 +94,7 @@ impl EpisodeSummary {
         let success_rate = (!successes.is_empty())
             .then(|| successes.iter().filter(|&&s| s).count() as f64 / successes.len() as f64);
         Self {
+            episodes: episodes.len(),
             return_mean: mean,
             return_std: var.sqrt(),
             success_rate,
@@ -107,8 +116,8 @@ impl Summary {
         dropped: (u64, u64),
         policy_version: u64,
     ) -> Self {
-        let det = EpisodeSummary::of(&eval.episodes);
-        let stoch = (!eval.stochastic.is_empty()).then(|| EpisodeSummary::of(&eval.stochastic));
+        let det = EvalStats::of(&eval.episodes);
+        let stoch = (!eval.stochastic.is_empty()).then(|| EvalStats::of(&eval.stochastic));
         Self {
             env: meta.env.clone(),
             algo: meta.algo.clone(),
