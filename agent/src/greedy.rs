@@ -13,12 +13,12 @@
 //!
 //! Measured on the ten 2,048-action gridworld runs of `results/sweeps/gridworld-actions.toml`
 //! (100 evaluation episodes each, `jsae eval --decode mean|mode`): the mean decode solved all
-//! ten; the mode from 256 draws got stuck on one (seed 1005: every episode 150 steps, return
-//! -1.5), where equivalent actions split the mass into cells of a few draws each and the
-//! estimate is noise; from 4,096 draws it solved that seed too, at 16 times the cost. A
-//! greedy policy in the gridworld can loop for good wherever its one action at a state runs
-//! into a wall (the state does not change), which the sampled policy escapes: evaluation
-//! reports both (README, Results).
+//! ten (and the ten 4,096-action runs); the mode got stuck on one of the ten (every episode
+//! 150 steps, return -1.5): seed 1005 from 256 draws, seed 1001 from 4,096 (16 times the
+//! cost). Equivalent actions (the same displacement) split the mass into cells of a few draws
+//! each, so the estimate is noise. A greedy policy in the gridworld loops for good wherever
+//! its one action at a state runs into a wall (the state does not change), which the sampled
+//! policy escapes; evaluation reports both (README, Results).
 
 use std::collections::HashMap;
 use std::sync::OnceLock;

@@ -78,12 +78,17 @@ fn a_short_run_prints_its_summary() {
 
     // The finished run evaluates again from its checkpoints: the run's own evaluation seed
     // reproduces summary.json's evaluation.
-    let summary: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("summary.json")).unwrap_or_default())
-            .expect("summary");
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("summary.json")).unwrap_or_default(),
+    )
+    .expect("summary");
     let d = dir.to_str().unwrap_or(".");
     let eval = jsae(&["eval", "--run", d]);
-    assert!(eval.status.success(), "{}", String::from_utf8_lossy(&eval.stderr));
+    assert!(
+        eval.status.success(),
+        "{}",
+        String::from_utf8_lossy(&eval.stderr)
+    );
     let again: serde_json::Value = serde_json::from_slice(&eval.stdout).expect("json");
     for key in [
         "eval_episodes",
@@ -93,10 +98,27 @@ fn a_short_run_prints_its_summary() {
     ] {
         assert_eq!(again[key], summary[key], "{key}");
     }
-    let mode = jsae(&["eval", "--run", d, "--episodes", "3", "--seed", "9", "--decode", "mode"]);
-    assert!(mode.status.success(), "{}", String::from_utf8_lossy(&mode.stderr));
+    let mode = jsae(&[
+        "eval",
+        "--run",
+        d,
+        "--episodes",
+        "3",
+        "--seed",
+        "9",
+        "--decode",
+        "mode",
+    ]);
+    assert!(
+        mode.status.success(),
+        "{}",
+        String::from_utf8_lossy(&mode.stderr)
+    );
     let mode: serde_json::Value = serde_json::from_slice(&mode.stdout).expect("json");
-    assert_eq!((mode["eval_episodes"].as_u64(), mode["decode"].as_str()), (Some(3), Some("mode")));
+    assert_eq!(
+        (mode["eval_episodes"].as_u64(), mode["decode"].as_str()),
+        (Some(3), Some("mode"))
+    );
     let missing = jsae(&["eval", "--run", "/nonexistent/run"]);
     assert_eq!(missing.status.code(), Some(2));
 }

@@ -61,7 +61,7 @@ pub struct Figure {
 }
 
 /// Registers the font once; the reason when none was found.
-fn font() -> Result<(), String> {
+pub fn font() -> Result<(), String> {
     static FONT: OnceLock<Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
         let from_env = std::env::var("JSAE_FONT").ok();

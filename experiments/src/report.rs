@@ -343,6 +343,7 @@ pub fn report(dir: &Path, out: &Path) -> Result<Report, ReportError> {
     let mut rows = Vec::new();
     let mut written = Vec::new();
     let mut figure_links = String::new();
+    let mut figures_skipped: Option<String> = None;
     let fig_dir = out.join("figures");
     std::fs::create_dir_all(&fig_dir).map_err(|e| file_error(&fig_dir)(e.to_string()))?;
     for ((setting, env), algos) in &groups {
@@ -381,6 +382,13 @@ pub fn report(dir: &Path, out: &Path) -> Result<Report, ReportError> {
                 y_label: label.into(),
                 series,
             };
+            if let Err(reason) = figures::font() {
+                // Tables without figures rather than no report (a machine with no font).
+                if figures_skipped.is_none() {
+                    figures_skipped = Some(reason);
+                }
+                continue;
+            }
             for path in figures::draw(&figure, &fig_dir.join(&stem))? {
                 written.push(path);
             }
@@ -400,6 +408,9 @@ pub fn report(dir: &Path, out: &Path) -> Result<Report, ReportError> {
     markdown.push_str(&markdown_table(&rows, &spec));
     markdown.push('\n');
     markdown.push_str(&figure_links);
+    if let Some(reason) = &figures_skipped {
+        let _ = writeln!(markdown, "No figures: {reason}.");
+    }
     let md_path = out.join("report.md");
     std::fs::write(&md_path, &markdown).map_err(|e| file_error(&md_path)(e.to_string()))?;
     written.push(md_path);
