@@ -60,6 +60,10 @@ pub fn sweep(file: &Path, jobs: Option<usize>, out: &Path) -> ExitCode {
             }
             ExitCode::FAILURE
         }
+        Err(e @ jsae_experiments::SweepError::Settings { .. }) => {
+            eprintln!("jsae sweep: {e}");
+            ExitCode::from(2)
+        }
         Err(e) => {
             eprintln!("jsae sweep: {e}");
             ExitCode::FAILURE

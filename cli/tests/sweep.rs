@@ -111,5 +111,23 @@ fn a_bad_sweep_file_exits_2_with_a_reason() {
     ]);
     assert_eq!(out.status.code(), Some(2));
     assert!(text(&out).contains("repeat"), "{}", text(&out));
+    // A setting the runs would refuse stops the sweep before any run starts.
+    std::fs::write(
+        &file,
+        "envs = [\"gridworld\"]\nalgos = [\"ppo\"]\nseeds = [1]\nenv_steps = 10\n\
+         [settings.typo.ppo]\nepochz = 3\n",
+    )
+    .expect("file");
+    let out_dir = file.with_extension("d");
+    let out = jsae(&[
+        "sweep",
+        file.to_str().unwrap_or("."),
+        "--out",
+        out_dir.to_str().unwrap_or("."),
+    ]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(text(&out).contains("epochz"), "{}", text(&out));
+    assert!(!out_dir.join("runs").exists());
+    let _ = std::fs::remove_dir_all(&out_dir);
     let _ = std::fs::remove_file(&file);
 }

@@ -13,6 +13,7 @@ use std::sync::Mutex;
 use std::time::Instant;
 
 use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::TrainConfig;
 
 use crate::grid::{Grid, RunSpec};
 
@@ -26,6 +27,14 @@ pub enum SweepError {
         path: PathBuf,
         /// The cause.
         source: std::io::Error,
+    },
+    /// A run's settings are refused (checked for every run before any starts).
+    #[error("{run}: {reason}")]
+    Settings {
+        /// The run.
+        run: String,
+        /// Why.
+        reason: String,
     },
 }
 
@@ -131,6 +140,12 @@ pub fn run_sweep(
         }
         let config = toml::to_string(&grid.run_config(&run)).unwrap_or_default();
         std::fs::write(&paths.config, config).map_err(io(&paths.config))?;
+        TrainConfig::from_layers(None, None, Some(&paths.config))
+            .and_then(|c| c.validate())
+            .map_err(|e| SweepError::Settings {
+                run: run.relative_dir().display().to_string(),
+                reason: e.to_string(),
+            })?;
         queue.push_back((run, paths));
     }
     let total = queue.len();
