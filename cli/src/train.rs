@@ -146,7 +146,7 @@ pub fn train_one_process(
         }
     }
 
-    progress.note("evaluating the deterministic policy");
+    progress.note("evaluating the deterministic and the sampled policy");
     let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
     let wall = started.elapsed().as_secs_f64();
     let summary = learner.summary(config, total(&actors), wall, &eval);

@@ -89,8 +89,13 @@ pub fn draw(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, ReportError> {
         let path = path.to_path_buf();
         move |message: String| ReportError::Figure { path, message }
     };
-    let svg = stem.with_extension("svg");
-    let png = stem.with_extension("png");
+    // Not with_extension: a setting's name may hold dots (`lr-0.001`).
+    let with = |ext: &str| {
+        let mut name = stem.as_os_str().to_os_string();
+        name.push(ext);
+        PathBuf::from(name)
+    };
+    let (svg, png) = (with(".svg"), with(".png"));
     font().map_err(fail(&svg))?;
     draw_on(SVGBackend::new(&svg, SIZE).into_drawing_area(), figure).map_err(fail(&svg))?;
     draw_on(BitMapBackend::new(&png, SIZE).into_drawing_area(), figure).map_err(fail(&png))?;

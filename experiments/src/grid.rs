@@ -175,6 +175,9 @@ impl Grid {
         unique(file.envs.len(), "envs")?;
         unique(file.algos.len(), "algos")?;
         unique(seeds.len(), "seeds")?;
+        if seeds.iter().any(|&s| i64::try_from(s).is_err()) {
+            return Err("seeds must be below 2^63".into());
+        }
         let mut sorted = seeds.clone();
         sorted.sort_unstable();
         sorted.dedup();

@@ -121,7 +121,17 @@ pub struct Report {
 }
 
 /// The finished runs under `dir/runs/`.
-pub fn collect(dir: &Path, spec: &ReportSpec) -> Result<Vec<RunResult>, ReportError> {
+pub fn collect(
+    dir: &Path,
+    spec: &ReportSpec,
+    grid: Option<&Grid>,
+) -> Result<Vec<RunResult>, ReportError> {
+    let wanted: Option<std::collections::BTreeSet<PathBuf>> = grid.map(|g| {
+        g.runs()
+            .iter()
+            .map(|r| dir.join(r.relative_dir()))
+            .collect()
+    });
     let runs = dir.join("runs");
     let mut found = Vec::new();
     let entries = |p: &Path| -> Result<Vec<PathBuf>, ReportError> {
@@ -142,6 +152,9 @@ pub fn collect(dir: &Path, spec: &ReportSpec) -> Result<Vec<RunResult>, ReportEr
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
         for run_dir in entries(&setting_dir)? {
+            if wanted.as_ref().is_some_and(|w| !w.contains(&run_dir)) {
+                continue; // not in the sweep file (any more)
+            }
             let summary_path = run_dir.join("summary.json");
             let Ok(text) = std::fs::read_to_string(&summary_path) else {
                 continue; // unfinished
@@ -151,6 +164,12 @@ pub fn collect(dir: &Path, spec: &ReportSpec) -> Result<Vec<RunResult>, ReportEr
             let metrics_path = run_dir.join("metrics.csv");
             let metrics = MetricsTable::read(&metrics_path)
                 .map_err(|e| file_error(&metrics_path)(e.to_string()))?;
+            if !metrics.columns().contains(&spec.column) {
+                return Err(file_error(&metrics_path)(format!(
+                    "no column {:?} (the sweep file's [report] column)",
+                    spec.column
+                )));
+            }
             found.push(RunResult {
                 setting: setting.clone(),
                 curve: metrics.series("env_steps", &spec.column),
@@ -268,7 +287,7 @@ pub fn markdown_table(rows: &[Row], spec: &ReportSpec) -> String {
     });
     for r in rows {
         let reached = r.reached.map_or_else(String::new, |(n, steps)| {
-            let steps = steps.map_or_else(|| "-".into(), |s| format!("{:.0}k", s / 1000.0));
+            let steps = steps.map_or_else(|| "-".into(), |s| format!("{:.1}k", s / 1000.0));
             format!(" | {n}/{} ({steps})", r.seeds)
         });
         let _ = writeln!(
@@ -295,10 +314,14 @@ pub fn markdown_table(rows: &[Row], spec: &ReportSpec) -> String {
 /// The mean curve over seeds with a 95% bootstrap band, on an even grid of env steps; a
 /// point is drawn only where every seed has a value.
 pub fn band(curves: &[&[(f64, f64)]], points: usize) -> Vec<Band> {
+    // Up to the shortest curve's end: no seed's last value is carried beyond its run.
     let end = curves
         .iter()
-        .filter_map(|c| c.last().map(|p| p.0))
-        .fold(0.0, f64::max);
+        .map(|c| c.last().map_or(0.0, |p| p.0))
+        .fold(f64::INFINITY, f64::min);
+    if !end.is_finite() {
+        return Vec::new();
+    }
     (1..=points)
         .filter_map(|i| {
             let x = end * i as f64 / points as f64;
@@ -331,14 +354,13 @@ fn sweep_source(dir: &Path) -> String {
 /// `report.json` and `figures/SETTING-ENV-{return_mean,COLUMN}.{svg,png}`.
 pub fn report(dir: &Path, out: &Path) -> Result<Report, ReportError> {
     let sweep_file = dir.join("sweep.toml");
-    let spec = if sweep_file.exists() {
-        Grid::read(&sweep_file)
-            .map_err(|e| file_error(&sweep_file)(e.to_string()))?
-            .report
+    let grid = if sweep_file.exists() {
+        Some(Grid::read(&sweep_file).map_err(|e| file_error(&sweep_file)(e.to_string()))?)
     } else {
-        ReportSpec::default()
+        None
     };
-    let runs = collect(dir, &spec)?;
+    let spec = grid.as_ref().map(|g| g.report.clone()).unwrap_or_default();
+    let runs = collect(dir, &spec, grid.as_ref())?;
     let groups = group(&runs);
     let mut rows = Vec::new();
     let mut written = Vec::new();
@@ -403,7 +425,9 @@ pub fn report(dir: &Path, out: &Path) -> Result<Report, ReportError> {
     markdown.push_str(
         "Mean over seeds with a 95% percentile-bootstrap interval in brackets; IQM: \
          interquartile mean of the deterministic evaluation return. Deterministic evaluation: \
-         the policy's mean action (then f); stochastic: sampled actions.\n\n",
+         the policy's mean action (then f); stochastic: sampled actions. Steps to the threshold: \
+         the seeds whose training curve reached it, and the mean of their first env step \
+         there (the others are not in that mean).\n\n",
     );
     markdown.push_str(&markdown_table(&rows, &spec));
     markdown.push('\n');

@@ -28,6 +28,14 @@ pub enum SweepError {
         /// The cause.
         source: std::io::Error,
     },
+    /// Another sweep is running into the same folder.
+    #[error("{path}: another sweep (pid {pid}) is running into this folder")]
+    Busy {
+        /// The lock file.
+        path: PathBuf,
+        /// Its pid.
+        pid: String,
+    },
     /// A run's settings are refused (checked for every run before any starts).
     #[error("{run}: {reason}")]
     Settings {
@@ -110,7 +118,41 @@ fn threads_per_run(jobs: usize) -> usize {
     (cores / jobs.max(1)).max(1)
 }
 
+/// The sweep's lock: `DIR/sweep.lock` holds the pid of the sweep running into `DIR`, so a
+/// second one started on the same folder (which would restart the first one's unfinished
+/// runs under it) is refused. Removed when dropped.
+#[derive(Debug)]
+struct Lock(PathBuf);
+
+impl Lock {
+    fn take(out: &Path) -> Result<Self, SweepError> {
+        let path = out.join("sweep.lock");
+        if let Ok(pid) = std::fs::read_to_string(&path) {
+            let pid = pid.trim();
+            let alive = !pid.is_empty() && Path::new("/proc").join(pid).exists();
+            if alive && pid != std::process::id().to_string() {
+                return Err(SweepError::Busy {
+                    path,
+                    pid: pid.to_string(),
+                });
+            }
+        }
+        std::fs::write(&path, format!("{}\n", std::process::id())).map_err(io(&path))?;
+        Ok(Self(path))
+    }
+}
+
+impl Drop for Lock {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(&self.0);
+    }
+}
+
 /// Runs every unfinished run of `grid`; `note` hears one line per started and ended run.
+///
+/// A run is finished when its `summary.json` reads and its `--config` file is the one this
+/// grid gives it; a run of an edited grid (other env steps, another overlay) is trained
+/// again. Every run's settings are checked before anything is written or started.
 pub fn run_sweep(
     grid: &Grid,
     sweep_text: &str,
@@ -119,18 +161,38 @@ pub fn run_sweep(
 ) -> Result<SweepOutcome, SweepError> {
     let out = &options.out;
     std::fs::create_dir_all(out).map_err(io(out))?;
-    let sweep_file = out.join("sweep.toml");
-    std::fs::write(&sweep_file, sweep_text).map_err(io(&sweep_file))?;
+    let _lock = Lock::take(out)?;
     let mut outcome = SweepOutcome::default();
-    let mut queue = VecDeque::new();
+    let mut todo = Vec::new();
+    let check = out.join(".settings-check.toml");
     for run in grid.runs() {
         let paths = RunPaths::new(out, &run);
-        if paths.finished() {
+        let name = || run.relative_dir().display().to_string();
+        let config = toml::to_string(&grid.run_config(&run)).map_err(|e| SweepError::Settings {
+            run: name(),
+            reason: e.to_string(),
+        })?;
+        let same = std::fs::read_to_string(&paths.config).is_ok_and(|old| old == config);
+        if same && paths.finished() {
             outcome.skipped += 1;
             continue;
         }
+        std::fs::write(&check, &config).map_err(io(&check))?;
+        TrainConfig::from_layers(None, None, Some(&check))
+            .and_then(|c| c.validate())
+            .map_err(|e| SweepError::Settings {
+                run: name(),
+                reason: e.to_string(),
+            })?;
+        todo.push((run, paths, config));
+    }
+    let _ = std::fs::remove_file(&check);
+    let sweep_file = out.join("sweep.toml");
+    std::fs::write(&sweep_file, sweep_text).map_err(io(&sweep_file))?;
+    let mut queue = VecDeque::new();
+    for (run, paths, config) in todo {
         if paths.dir.exists() {
-            // An interrupted run: start it again from nothing.
+            // An interrupted run, or one of an edited grid: start it again from nothing.
             std::fs::remove_dir_all(&paths.dir).map_err(io(&paths.dir))?;
         }
         for file in [&paths.config, &paths.log] {
@@ -138,14 +200,7 @@ pub fn run_sweep(
                 std::fs::create_dir_all(parent).map_err(io(parent))?;
             }
         }
-        let config = toml::to_string(&grid.run_config(&run)).unwrap_or_default();
         std::fs::write(&paths.config, config).map_err(io(&paths.config))?;
-        TrainConfig::from_layers(None, None, Some(&paths.config))
-            .and_then(|c| c.validate())
-            .map_err(|e| SweepError::Settings {
-                run: run.relative_dir().display().to_string(),
-                reason: e.to_string(),
-            })?;
         queue.push_back((run, paths));
     }
     let total = queue.len();
@@ -195,7 +250,24 @@ fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
     let Ok(log2) = log.try_clone() else {
         return false;
     };
-    let status = Command::new(exe)
+    let mut command = Command::new(exe);
+    // The run's settings are its --config file alone: the `jsae train` flags' environment
+    // variables would override them.
+    for var in [
+        "JSAE_ENV_STEPS",
+        "JSAE_ACTORS",
+        "JSAE_ENVS",
+        "JSAE_OUT",
+        "JSAE_DEVICE",
+        "JSAE_EVAL_EPISODES",
+        "JSAE_ENV",
+        "JSAE_ALGO",
+        "JSAE_SEED",
+        "JSAE_CONFIG",
+    ] {
+        command.env_remove(var);
+    }
+    let status = command
         .arg("train")
         .arg("--config")
         .arg(&paths.config)

@@ -39,7 +39,7 @@ fn report_of_known_runs() {
     std::fs::write(
         dir.join("sweep.toml"),
         "envs = [\"gridworld-discrete\"]\nalgos = [\"jsae\", \"ppo\"]\nseeds = [1, 2, 3, 4]\n\
-         env_steps = 4000\n[report]\nthreshold = 0.9\n",
+         env_steps = 4000\n[report]\nthreshold = 0.9\n[settings.a9]\n",
     )
     .expect("sweep file");
     // jsae: eval returns 1, 2, 3, 10 (mean 4, IQM of the middle two: 2.5); success 1, 1, 1, 0;
@@ -57,7 +57,9 @@ fn report_of_known_runs() {
     for seed in 1..=4 {
         write_run(&dir, "a9", "ppo", seed, (0.5, 0.0), &[0.1, 0.2, 0.3, 0.4]);
     }
-    // An unfinished run (no summary.json) is left out.
+    // A finished run the sweep file does not name (seed 9) and an unfinished run (no
+    // summary.json) are left out.
+    write_run(&dir, "a9", "jsae", 9, (100.0, 1.0), &[1.0]);
     std::fs::create_dir_all(dir.join("runs/a9/gridworld-discrete-ppo-seed5")).expect("mkdir");
 
     let made = report::report(&dir, &dir).expect("report");
@@ -89,7 +91,7 @@ fn report_of_known_runs() {
         made.markdown
             .contains("| a9 | gridworld-discrete | jsae | 4 | 4.00 [")
     );
-    assert!(made.markdown.contains("3/4 (3k)"));
+    assert!(made.markdown.contains("3/4 (3.0k)"));
     assert!(std::fs::metadata(dir.join("report.json")).is_ok_and(|m| m.len() > 500));
     if let Err(reason) = jsae_experiments::figures::font() {
         // A machine without a TrueType font gets the tables and the reason.
