@@ -48,12 +48,9 @@ fn pretrained_structure(config: &TrainConfig) -> (f64, f64) {
         1,
         DeviceKind::Flex,
     );
-    let per_env = config.embedding.pretrain_transitions / config.envs_per_actor;
+    let per_env = config.pretrain_budget() / config.envs_per_actor;
     let rollout = worker.collect(per_env);
-    assert_eq!(
-        rollout.transitions.len(),
-        config.embedding.pretrain_transitions
-    );
+    assert_eq!(rollout.transitions.len(), config.pretrain_budget());
     assert!(
         rollout.fragments.is_empty(),
         "no policy acts before the first embedding"

@@ -21,7 +21,6 @@
 //! policy escapes; evaluation reports both (README, Results).
 
 use std::collections::HashMap;
-use std::sync::OnceLock;
 
 use jsae_embedder::Embedding;
 use jsae_proto::ActionBatch;
@@ -43,20 +42,13 @@ pub enum GreedyDecode {
 /// Draws per greedy action (the mean included).
 pub const SAMPLES: usize = 4096;
 
-/// The fixed standard-normal draws for `dim` dimensions, `[SAMPLES, dim]`, row 0 zero.
+/// The fixed standard-normal draws for `dim` dimensions, `[SAMPLES, dim]`, row 0 zero (the
+/// same seed every call: common random numbers across states).
 fn draws(dim: usize) -> Vec<f32> {
-    static CACHE: OnceLock<std::sync::Mutex<HashMap<usize, Vec<f32>>>> = OnceLock::new();
-    let cache = CACHE.get_or_init(Default::default);
-    let mut cache = cache.lock().unwrap_or_else(|e| e.into_inner());
-    cache
-        .entry(dim)
-        .or_insert_with(|| {
-            let mut rng = ChaCha8Rng::seed_from_u64(0x6eed_7a11);
-            let mut z = vec![0.0; dim];
-            z.extend((dim..SAMPLES * dim).map(|_| -> f32 { StandardNormal.sample(&mut rng) }));
-            z
-        })
-        .clone()
+    let mut rng = ChaCha8Rng::seed_from_u64(0x6eed_7a11);
+    let mut z = vec![0.0; dim];
+    z.extend((dim..SAMPLES * dim).map(|_| -> f32 { StandardNormal.sample(&mut rng) }));
+    z
 }
 
 /// The policy's most likely discrete action at mean embedding `mean` with per-dimension
