@@ -43,6 +43,7 @@ fn pretrained_structure(config: &TrainConfig) -> (f64, f64) {
     let (states, actions) = (worker.state_space().clone(), worker.action_space().clone());
     let mut trainer = EmbedderTrainer::new(
         config.embedding.clone(),
+        config.algo.representation(),
         &states,
         &actions,
         1,
@@ -62,6 +63,7 @@ fn pretrained_structure(config: &TrainConfig) -> (f64, f64) {
     assert_eq!(snapshot.version, 1);
     let embedding = Embedding::from_snapshot(
         &config.embedding,
+        config.algo.representation(),
         &states,
         &actions,
         &snapshot,

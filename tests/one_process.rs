@@ -1,5 +1,5 @@
 //! End-to-end runs of the one-process trainer: determinism, both devices, every
-//! environment with both algorithms, and the run directory's files.
+//! environment with every algorithm, warm starts, and the run directory's files.
 
 use jsae_cli::progress::Progress;
 use jsae_cli::train_one_process;
@@ -77,6 +77,8 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
         "policy_lag_mean",
         "policy_loss",
         "value_loss",
+        "embedding_loss",
+        "embedding_structure",
     ] {
         assert!(
             header.split(',').any(|c| c == col),
@@ -84,6 +86,13 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
         );
     }
     assert!(metrics.lines().count() > 2);
+    // The gridworld's action embeddings are measured against the actions' displacements.
+    let table = jsae_learner::MetricsTable::read(&dir.join("metrics.csv")).expect("reads");
+    let structure = table.series("env_steps", "embedding_structure");
+    assert!(
+        structure.last().is_some_and(|p| p.1 > 0.0 && p.1 < 1.5),
+        "{structure:?}"
+    );
     let checkpoints: Vec<_> = std::fs::read_dir(dir.join("checkpoints"))
         .expect("checkpoints")
         .collect();
@@ -92,7 +101,7 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
 }
 
 #[test]
-fn both_algorithms_train_on_every_environment_and_on_both_devices() {
+fn every_algorithm_trains_on_every_environment_and_on_both_devices() {
     for (env, algo, device) in [
         (EnvName::Gridworld, Algo::Jsae, DeviceKind::Flex),
         (EnvName::Gridworld, Algo::Ppo, DeviceKind::Flex),
@@ -103,6 +112,13 @@ fn both_algorithms_train_on_every_environment_and_on_both_devices() {
         (EnvName::HalfCheetah, Algo::Jsae, DeviceKind::Flex),
         (EnvName::HalfCheetah, Algo::Ppo, DeviceKind::Flex),
         (EnvName::Ant, Algo::Jsae, DeviceKind::Flex),
+        // the baselines: discrete and continuous actions, categorical and real states
+        (EnvName::GridworldDiscrete, Algo::Ae, DeviceKind::Flex),
+        (EnvName::GridworldDiscrete, Algo::Ra, DeviceKind::Ndarray),
+        (EnvName::Gridworld, Algo::Ra, DeviceKind::Flex),
+        (EnvName::HalfCheetah, Algo::Ae, DeviceKind::Flex),
+        (EnvName::HalfCheetah, Algo::Ra, DeviceKind::Flex),
+        (EnvName::Slotmachine, Algo::Ae, DeviceKind::Flex),
         // the recommender on the real Instacart sample (fetched at build time)
         (EnvName::Recommender, Algo::Jsae, DeviceKind::Flex),
         (EnvName::Recommender, Algo::Ppo, DeviceKind::Ndarray),
@@ -126,4 +142,33 @@ fn both_algorithms_train_on_every_environment_and_on_both_devices() {
         let has_goal = matches!(env, EnvName::Gridworld | EnvName::GridworldDiscrete);
         assert_eq!(s.eval_success_rate.is_some(), has_goal);
     }
+}
+
+#[test]
+fn a_run_warm_starts_from_another_with_more_actions_and_refuses_a_mismatch() {
+    let source = temp_dir("init-source");
+    let config = small_config(EnvName::GridworldDiscrete, Algo::Jsae, 5, source.clone());
+    train_one_process(&config, &mut Progress::new(0, true)).expect("source run");
+
+    let target = temp_dir("init-target");
+    let mut warm = small_config(EnvName::GridworldDiscrete, Algo::Jsae, 5, target.clone());
+    warm.environment.gridworld.actuators = 10;
+    warm.init_from = Some(source.clone());
+    let outcome = train_one_process(&warm, &mut Progress::new(0, true)).expect("warm run");
+    assert!(outcome.summary.learner_updates > 0);
+    let written = std::fs::read_to_string(target.join("config.toml")).expect("config.toml");
+    assert!(written.contains("init_from"), "{written}");
+
+    let mut other = small_config(
+        EnvName::GridworldDiscrete,
+        Algo::Ppo,
+        5,
+        temp_dir("init-bad"),
+    );
+    other.init_from = Some(source.clone());
+    let err = train_one_process(&other, &mut Progress::new(0, true)).expect_err("jsae -> ppo");
+    assert!(err.to_string().contains("--init-from"), "{err}");
+    other.init_from = Some(temp_dir("init-missing"));
+    let err = train_one_process(&other, &mut Progress::new(0, true)).expect_err("no run");
+    assert!(err.to_string().contains("config.toml"), "{err}");
 }

@@ -134,6 +134,7 @@ impl Weights {
         }
         let embedding = Embedding::from_snapshot(
             &self.config.embedding,
+            self.config.algo.representation(),
             &self.states,
             &self.actions,
             snapshot,

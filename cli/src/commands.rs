@@ -152,6 +152,11 @@ pub struct TrainArgs {
     /// of as separate service processes talking gRPC over loopback.
     #[arg(long)]
     pub one_process: bool,
+    /// A finished run (same env and algorithm, same embedding widths) to warm-start from:
+    /// its policy and the embedding parts whose shapes match (phi, T; g only with the same
+    /// action count).
+    #[arg(long, env = "JSAE_INIT_FROM")]
+    pub init_from: Option<PathBuf>,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
@@ -166,6 +171,9 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
     c.device = a.device.unwrap_or(c.device);
     c.eval_episodes = a.eval_episodes.unwrap_or(c.eval_episodes);
     c.one_process |= a.one_process;
+    if let Some(run) = &a.init_from {
+        c.init_from = Some(run.clone());
+    }
     if let Some(out) = &a.out {
         c.out = out.clone();
     }
@@ -173,6 +181,8 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
         c.out = RunDir::default_path(c.env, c.algo, c.seed);
     }
     c.validate().map_err(|e| e.to_string())?;
+    // the warm start's run is read and checked before any service starts
+    c.init_source().map_err(|e| e.to_string())?;
     Ok(c)
 }
 

@@ -214,6 +214,7 @@ pub fn latest_embedding(dir: &RunDir) -> Option<EmbeddingSnapshot> {
         bytes: std::fs::read(path).ok()?,
         model_loss: 0.0,
         decoder_loss: 0.0,
+        action_structure: None,
     })
 }
 
@@ -224,6 +225,7 @@ pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> std::io::Result<Vec<P
     let embedding = latest_embedding(dir).and_then(|s| {
         Embedding::from_snapshot(
             &config.embedding,
+            config.algo.representation(),
             &states,
             &actions,
             &s,

@@ -90,12 +90,27 @@ pub fn train_one_process(
     let mut embedder = config.algo.representation().needs_embedder().then(|| {
         EmbedderTrainer::new(
             config.embedding.clone(),
+            config.algo.representation(),
             &states,
             &actions,
             config.seed,
             config.device,
         )
+        .with_action_motions(config.env.action_motions(&config.environment))
     });
+    if let Some(source) = config.init_source()? {
+        learner
+            .warm_start(&source.policy)
+            .map_err(|e| TrainError::Service(format!("--init-from policy: {e}")))?;
+        if let Some(emb) = embedder.as_mut() {
+            let parts = emb.warm_start(&source).map_err(TrainError::Embedder)?;
+            progress.note(&format!(
+                "warm start from {}: the policy and embedding parts {}",
+                source.dir.display(),
+                parts.join(", ")
+            ));
+        }
+    }
 
     let first = learner
         .snapshot()
@@ -132,9 +147,8 @@ pub fn train_one_process(
             learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
             for fragment in rollout.fragments {
                 if let Ingested::Updated(report) = learner.ingest(fragment)? {
-                    let loss = last_embedding.as_ref().map(|s| s.model_loss);
-                    let row =
-                        update_scalars(&report.metrics, started.elapsed().as_secs_f64(), loss);
+                    let wall = started.elapsed().as_secs_f64();
+                    let row = update_scalars(&report.metrics, wall, last_embedding.as_ref());
                     metrics.record(&row).map_err(io(metrics.path()))?;
                     progress.update(&report.metrics);
                     for a in &mut actors {

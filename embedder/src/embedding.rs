@@ -2,6 +2,7 @@
 //! the g-table, or the decoder MLP) for action embeddings.
 
 use burn::tensor::Device;
+use jsae_proto::settings::Representation;
 use jsae_proto::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateSpace};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -18,16 +19,18 @@ pub struct Embedding {
 }
 
 impl Embedding {
-    /// Builds the model structure from a snapshot's bytes.
+    /// Builds the model structure of `representation` from a snapshot's bytes.
     pub fn from_snapshot(
         config: &EmbeddingConfig,
+        representation: Representation,
         states: &StateSpace,
         actions: &ActionSpace,
         snapshot: &EmbeddingSnapshot,
         device: &Device,
     ) -> Result<Self, RecordError> {
         let mut rng = ChaCha8Rng::seed_from_u64(0);
-        let mut model = EmbeddingModel::new(config, states, actions, &mut rng, device);
+        let mut model =
+            EmbeddingModel::new(config, representation, states, actions, &mut rng, device);
         model.load_bytes(&snapshot.bytes)?;
         let nearest = model
             .action_table()

@@ -1,4 +1,5 @@
-//! The JSAE embedding model and its trainer.
+//! The JSAE embedding model (and the AE and RA baselines that share its inference side) and
+//! its trainer.
 //!
 //! phi maps states to `X = R^m`, g maps actions to `E = R^d`, T predicts the next state from
 //! `concat(phi(s), g(a))`, and f maps `E` back to actions (exact nearest neighbour over the
@@ -7,7 +8,8 @@
 //!
 //! Layout: `model` (the networks and losses), `nearest` (f for discrete
 //! actions), `replay` (the bounded transition buffer), `representation` (the seam: the
-//! trait every trained representation implements), `trainer` (pre-training, continuous
+//! trait every trained representation implements), `structure` (how much of the action
+//! geometry g holds), `trainer` (pre-training, continuous
 //! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `service` (the gRPC embedder service). The settings
 //! are `jsae_proto::settings::EmbeddingConfig`.
 
@@ -19,6 +21,7 @@ mod nearest;
 pub mod replay;
 mod representation;
 pub mod service;
+mod structure;
 mod trainer;
 
 pub use embedding::Embedding;
@@ -26,4 +29,5 @@ pub use jsae_proto::settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
 pub use representation::RepresentationModel;
+pub use structure::ActionStructure;
 pub use trainer::{EmbedderStats, EmbedderTrainer};

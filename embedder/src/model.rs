@@ -1,5 +1,7 @@
 //! The embedding model: phi (states -> X), g (actions -> E), T (X x E -> S) and, for
-//! continuous actions, the decoder f (E -> A).
+//! continuous actions, the decoder f (E -> A). The AE and RA baselines share its inference
+//! side (phi, the g-table or f) and differ in their training heads and losses
+//! ([`baselines`]); [`Representation`] picks which.
 //!
 //! As in the public reference code: phi and g are one linear layer without bias followed by
 //! tanh (for categorical inputs a table: a linear layer on one-hots), T is one linear layer.
@@ -15,6 +17,10 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::EmbeddingConfig;
 use jsae_nn::{self as nn, Mlp, MlpConfig, ObsNorm};
+use jsae_proto::settings::Representation;
+
+mod baselines;
+mod transfer;
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]
@@ -27,12 +33,20 @@ pub struct EmbeddingNet {
     g_table: Option<Param<Tensor<2>>>,
     /// g for continuous actions: `[dim -> d]`, no bias.
     g_linear: Option<Linear>,
-    /// T's hidden layer (tanh), when `transition_hidden > 0`.
+    /// T's hidden layer (tanh), when `transition_hidden > 0` (JSAE).
     transition_in: Option<Linear>,
-    /// T: `[m + d (or the hidden width) -> logits over next states | next state]`.
-    transition: Linear,
-    /// f for continuous actions: `E -> A`, one hidden layer.
+    /// T: `[m + d (or the hidden width) -> logits over next states | next state]` (JSAE).
+    transition: Option<Linear>,
+    /// f for continuous actions: `E -> A` (one hidden layer; the AE's is one linear layer).
     decoder: Option<Mlp>,
+    /// AE: the state auto-encoder's second layer, `X -> logits over states | state`.
+    state_decoder: Option<Linear>,
+    /// AE, discrete actions: the action auto-encoder's second layer, `E -> logits over A`.
+    action_decoder: Option<Linear>,
+    /// RA: the inverse model after phi, `concat(phi(s), phi(s')) -> E` (tanh on the output).
+    inverse: Option<Mlp>,
+    /// RA, discrete actions: log of the scale of f's logits `-scale * |e - z_a|^2`.
+    inverse_log_scale: Option<Param<Tensor<1>>>,
     /// Running statistics of real-valued states (`normalize_states`): phi sees normalised
     /// states and T predicts normalised next states.
     state_norm: Option<ObsNorm>,
@@ -42,6 +56,7 @@ pub struct EmbeddingNet {
 #[derive(Debug, Clone)]
 pub struct EmbeddingModel {
     net: EmbeddingNet,
+    representation: Representation,
     states: StateSpace,
     actions: ActionSpace,
     offsets: Vec<u32>,
@@ -75,15 +90,19 @@ fn uniform_linear(
 }
 
 impl EmbeddingModel {
-    /// A freshly initialised model for the given spaces.
+    /// A freshly initialised model of `representation` for the given spaces (JSAE's
+    /// parameters are drawn in the same order as before the baselines existed, so a seed
+    /// gives the same JSAE model; the baselines draw their own heads after phi and g).
     pub fn new(
         config: &EmbeddingConfig,
+        representation: Representation,
         states: &StateSpace,
         actions: &ActionSpace,
         rng: &mut ChaCha8Rng,
         device: &Device,
     ) -> Self {
         let (m, d) = (config.state_dim, config.action_dim);
+        let ra = representation == Representation::ActionRepresentation;
         let (phi_table, phi_linear) = match states {
             StateSpace::Categorical { sizes } => (
                 Some(uniform_table(sizes.iter().sum(), m, rng, device)),
@@ -94,28 +113,64 @@ impl EmbeddingModel {
         let (g_table, g_linear, decoder) = match actions {
             ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
             ActionSpace::Continuous { dim, .. } => {
+                // RA has no action encoder: its embeddings come from the inverse model.
+                let g = (!ra).then(|| uniform_linear(*dim, d, false, rng, device));
+                let hidden = match representation {
+                    Representation::AutoEncoder => vec![],
+                    _ => vec![config.decoder_hidden],
+                };
                 let decoder = MlpConfig {
                     input: d,
-                    hidden: vec![config.decoder_hidden],
+                    hidden,
                     output: *dim,
                     output_gain: 1.0,
                 };
-                (
-                    None,
-                    Some(uniform_linear(*dim, d, false, rng, device)),
-                    Some(decoder.init(rng, device)),
-                )
+                (None, g, Some(decoder.init(rng, device)))
             }
         };
-        let (transition_in, t_in) = match config.transition_hidden {
-            0 => (None, m + d),
-            h => (Some(uniform_linear(m + d, h, true, rng, device)), h),
+        let mut net = EmbeddingNet {
+            phi_table,
+            phi_linear,
+            g_table,
+            g_linear,
+            transition_in: None,
+            transition: None,
+            decoder,
+            state_decoder: None,
+            action_decoder: None,
+            inverse: None,
+            inverse_log_scale: None,
+            state_norm: match states {
+                StateSpace::Real { dim } if config.normalize_states => {
+                    Some(ObsNorm::new(*dim, device))
+                }
+                _ => None,
+            },
         };
-        let transition = uniform_linear(t_in, states.feature_len(), true, rng, device);
-        let state_norm = match states {
-            StateSpace::Real { dim } if config.normalize_states => Some(ObsNorm::new(*dim, device)),
-            _ => None,
-        };
+        match representation {
+            Representation::Jsae | Representation::Raw => {
+                let t_in = match config.transition_hidden {
+                    0 => m + d,
+                    h => {
+                        net.transition_in = Some(uniform_linear(m + d, h, true, rng, device));
+                        h
+                    }
+                };
+                net.transition = Some(uniform_linear(
+                    t_in,
+                    states.feature_len(),
+                    true,
+                    rng,
+                    device,
+                ));
+            }
+            Representation::AutoEncoder => {
+                baselines::autoencoder_heads(&mut net, config, states, actions, rng, device)
+            }
+            Representation::ActionRepresentation => {
+                baselines::inverse_heads(&mut net, config, actions, rng, device)
+            }
+        }
         let offsets = match states {
             StateSpace::Categorical { sizes } => sizes
                 .iter()
@@ -128,22 +183,19 @@ impl EmbeddingModel {
             StateSpace::Real { .. } => Vec::new(),
         };
         Self {
-            net: EmbeddingNet {
-                phi_table,
-                phi_linear,
-                g_table,
-                g_linear,
-                transition_in,
-                transition,
-                decoder,
-                state_norm,
-            },
+            net,
+            representation,
             states: states.clone(),
             actions: actions.clone(),
             offsets,
             config: config.clone(),
             device: device.clone(),
         }
+    }
+
+    /// Which representation it is (which heads it has, which losses train it).
+    pub fn representation(&self) -> Representation {
+        self.representation
     }
 
     /// The settings it was built with.
@@ -290,7 +342,10 @@ impl EmbeddingModel {
             Some(hidden) => hidden.forward(input).tanh(),
             None => input,
         };
-        self.net.transition.forward(input)
+        match &self.net.transition {
+            Some(t) => t.forward(input),
+            None => panic!("only JSAE's model has a transition model T"),
+        }
     }
 
     /// f for continuous actions: `[batch, d] -> [batch, action dim]` (None for discrete).
@@ -298,19 +353,38 @@ impl EmbeddingModel {
         self.net.decoder.as_ref().map(|f| f.forward(e))
     }
 
-    /// The losses on a minibatch: `-log P(s'|s,a)` (cross-entropy per factor, or MSE) for
-    /// phi, g and T, and f's reconstruction MSE on detached `g(a)` (zero for discrete
-    /// actions, whose f is a nearest-neighbour lookup).
+    /// The losses on a minibatch as (model loss, decoder loss), by representation: JSAE's
+    /// `-log P(s'|s,a)` (cross-entropy per factor, or MSE) for phi, g and T and f's
+    /// reconstruction MSE on detached `g(a)` (zero for discrete actions, whose f is a
+    /// nearest-neighbour lookup); the AE's and RA's are documented in `model/baselines.rs`.
     pub fn losses(
         &self,
         states: &StateBatch,
         actions: &ActionBatch,
         next_states: &StateBatch,
     ) -> (Tensor<1>, Tensor<1>) {
+        match self.representation {
+            Representation::AutoEncoder => return self.autoencoder_losses(states, actions),
+            Representation::ActionRepresentation => {
+                return self.inverse_losses(states, actions, next_states);
+            }
+            Representation::Jsae | Representation::Raw => {}
+        }
         let x = self.embed_states(states);
         let e = self.embed_actions(actions);
         let out = self.predict_next(x, e.clone());
-        let model_loss = match (next_states, &self.states) {
+        let model_loss = self.state_loss(out, next_states);
+        let decoder_loss = match (actions, self.decode(e.detach())) {
+            (ActionBatch::Continuous { .. }, Some(pred)) => self.action_mse(pred, actions),
+            _ => Tensor::zeros([1], &self.device),
+        };
+        (model_loss.reshape([1]), decoder_loss.reshape([1]))
+    }
+
+    /// How well `out` (logits per factor, or a prediction) predicts `target` states: the
+    /// summed cross-entropy per factor, or the MSE on normalised states.
+    fn state_loss(&self, out: Tensor<2>, target: &StateBatch) -> Tensor<1> {
+        match (target, &self.states) {
             (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) => {
                 let batch = data.len() / factors;
                 let mut total: Option<Tensor<1>> = None;
@@ -320,11 +394,7 @@ impl EmbeddingModel {
                     let target: Vec<i64> = (0..batch)
                         .map(|i| i64::from(data[i * factors + f]))
                         .collect();
-                    let target = Tensor::<2, Int>::from_data(
-                        TensorData::new(target, [batch, 1]),
-                        &self.device,
-                    );
-                    let nll = cross_entropy(logits, target);
+                    let nll = cross_entropy(logits, self.index_column(target));
                     total = Some(match total {
                         None => nll,
                         Some(t) => t + nll,
@@ -343,15 +413,24 @@ impl EmbeddingModel {
                 (out - target).square().mean()
             }
             _ => unreachable_state(),
-        };
-        let decoder_loss = match (actions, self.decode(e.detach())) {
-            (ActionBatch::Continuous { dim, data }, Some(pred)) => {
+        }
+    }
+
+    /// MSE of predicted continuous actions against `actions`.
+    fn action_mse(&self, pred: Tensor<2>, actions: &ActionBatch) -> Tensor<1> {
+        match actions {
+            ActionBatch::Continuous { dim, data } => {
                 let target = nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device);
                 (pred - target).square().mean()
             }
-            _ => Tensor::zeros([1], &self.device),
-        };
-        (model_loss.reshape([1]), decoder_loss.reshape([1]))
+            ActionBatch::Discrete(_) => unreachable_action(),
+        }
+    }
+
+    /// Integer targets as a `[batch, 1]` column.
+    fn index_column(&self, target: Vec<i64>) -> Tensor<2, Int> {
+        let n = target.len();
+        Tensor::<2, Int>::from_data(TensorData::new(target, [n, 1]), &self.device)
     }
 }
 

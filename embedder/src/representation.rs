@@ -1,8 +1,8 @@
 //! The seam between the embedder's trainer and the model it trains. The trainer (replay
 //! buffer, pre-training, continuous updates, versions, checkpoints) is the same for every
 //! representation; what differs (the networks, their losses, their weights' bytes) sits
-//! behind [`RepresentationModel`]. JSAE's phi/g/T/f ([`EmbeddingModel`]) is the one
-//! implementation today; the AE and RA baselines are the next ones. Which questions a
+//! behind [`RepresentationModel`]. [`EmbeddingModel`] implements it for JSAE's phi/g/T/f and,
+//! with other heads and losses, for the AE and RA baselines. Which questions a
 //! representation answers for the rest of the system (does it embed states? does f decode
 //! actions?) is `jsae_proto::settings::Representation`.
 
@@ -22,7 +22,8 @@ pub trait RepresentationModel: std::fmt::Debug + Send {
     /// Updates input statistics (state normalisation) with new states.
     fn observe_states(&mut self, states: &StateBatch);
     /// One optimiser step on a minibatch at learning rate `lr`; returns (model loss, decoder
-    /// loss) before the step.
+    /// loss) before the step (JSAE: `-log P(s'|s,a)` and f's; AE: the state and the action
+    /// reconstruction; RA: `-log f(a | e(s, s'))` and 0).
     fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32);
     /// (model loss, decoder loss) on a minibatch, without training.
     fn evaluate(&self, mb: &Minibatch) -> (f32, f32);
@@ -30,6 +31,9 @@ pub trait RepresentationModel: std::fmt::Debug + Send {
     fn snapshot_bytes(&self) -> Result<Vec<u8>, RecordError>;
     /// Loads weights from snapshot bytes.
     fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError>;
+    /// Every discrete action's embedding, `[n, d]` row-major, and `d` (None for continuous
+    /// actions).
+    fn action_embeddings(&self) -> Option<(Vec<f32>, usize)>;
 }
 
 impl RepresentationModel for EmbeddingModel {
@@ -45,7 +49,7 @@ impl RepresentationModel for EmbeddingModel {
         self.update_state_stats(states);
     }
 
-    /// phi, g and T on `-log P(s'|s,a)` (or MSE), f on detached `g(a)`, one joint step.
+    /// Every representation's losses (`EmbeddingModel::losses`), summed, one joint step.
     fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32) {
         let (model_loss, decoder_loss) = self.losses(&mb.states, &mb.actions, &mb.next_states);
         let total = model_loss.clone() + decoder_loss.clone();
@@ -71,5 +75,10 @@ impl RepresentationModel for EmbeddingModel {
 
     fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
         EmbeddingModel::load_bytes(self, bytes)
+    }
+
+    fn action_embeddings(&self) -> Option<(Vec<f32>, usize)> {
+        let table = self.action_table()?;
+        Some((jsae_nn::to_vec(table), self.config().action_dim))
     }
 }

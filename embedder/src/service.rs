@@ -114,6 +114,7 @@ pub fn latest_checkpoint(dir: &std::path::Path) -> Option<EmbeddingSnapshot> {
         bytes,
         model_loss: 0.0,
         decoder_loss: 0.0,
+        action_structure: None,
     })
 }
 
@@ -127,11 +128,14 @@ fn training_loop(
 ) -> Result<(), String> {
     let mut trainer = EmbedderTrainer::new(
         config.embedding.clone(),
+        config.algo.representation(),
         states,
         actions,
         config.seed,
         config.device,
-    );
+    )
+    .with_action_motions(config.env.action_motions(&config.environment));
+    let mut resumed = false;
     if let Some(dir) = &options.checkpoint_dir
         && let Some(saved) = latest_checkpoint(dir)
     {
@@ -142,12 +146,21 @@ fn training_loop(
                     saved.version
                 );
                 publish.send_replace(Some(Arc::new(saved)));
+                resumed = true;
             }
             Err(e) => tracing::error!(
                 "the embedding checkpoint in {} does not fit this model ({e}); starting afresh",
                 dir.display()
             ),
         }
+    }
+    if !resumed && let Some(source) = config.init_source().map_err(|e| e.to_string())? {
+        let parts = trainer.warm_start(&source)?;
+        tracing::info!(
+            "warm-started from {}: {}",
+            source.dir.display(),
+            parts.join(", ")
+        );
     }
     while let Some(batch) = queue.blocking_recv() {
         trainer.ingest(&batch).map_err(|e| e.to_string())?;

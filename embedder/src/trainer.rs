@@ -5,6 +5,7 @@
 
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, AdamWConfig, ModuleOptimizer};
+use jsae_proto::settings::{InitSource, Representation};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -12,6 +13,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::replay::Replay;
 use crate::representation::RepresentationModel;
+use crate::structure::ActionStructure;
 use crate::{EmbeddingConfig, EmbeddingModel};
 use jsae_nn::{self as nn, BurnDevice, DeviceKind};
 
@@ -30,6 +32,9 @@ pub struct EmbedderStats {
     pub transitions: u64,
     /// Transitions the replay buffer dropped to make room.
     pub overwritten: u64,
+    /// The action embeddings' structure at the last snapshot ([`ActionStructure`]; None
+    /// where the environment gives no action displacements).
+    pub action_structure: Option<f32>,
 }
 
 /// Owns the representation model (JSAE's by default), its optimiser and the replay buffer.
@@ -42,6 +47,7 @@ pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
     rng: ChaCha8Rng,
     since_update: usize,
     stats: EmbedderStats,
+    structure: Option<ActionStructure>,
 }
 
 /// The optimiser (burn's has no `Debug`).
@@ -54,17 +60,48 @@ impl std::fmt::Debug for OptimDebug {
 }
 
 impl EmbedderTrainer {
-    /// A trainer with a freshly initialised JSAE model.
+    /// A trainer with a freshly initialised model of `representation`.
     pub fn new(
         config: EmbeddingConfig,
+        representation: Representation,
         states: &StateSpace,
         actions: &ActionSpace,
         seed: u64,
         device: DeviceKind,
     ) -> Self {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x656d_6265_6464_6572);
-        let model = EmbeddingModel::new(&config, states, actions, &mut rng, &device.train_device());
+        let model = EmbeddingModel::new(
+            &config,
+            representation,
+            states,
+            actions,
+            &mut rng,
+            &device.train_device(),
+        );
         Self::with_model(config, model, rng)
+    }
+
+    /// Warm-starts the model from another run's newest embedding (`--init-from`): every part
+    /// whose shape matches is copied ([`EmbeddingModel::warm_start_from`]); pre-training still
+    /// runs, so parts that did not carry over (g for a new action space) are fitted around the
+    /// ones that did. Returns the parts copied.
+    pub fn warm_start(&mut self, source: &InitSource) -> Result<Vec<&'static str>, String> {
+        let bytes = source
+            .embedding
+            .as_ref()
+            .ok_or_else(|| format!("{}: no embedding checkpoint", source.dir.display()))?;
+        let (states, actions) = source.config.spaces();
+        let mut from = EmbeddingModel::new(
+            &source.config.embedding,
+            source.config.algo.representation(),
+            &states,
+            &actions,
+            &mut ChaCha8Rng::seed_from_u64(0),
+            &self.model.device().clone(),
+        );
+        from.load_bytes(bytes)
+            .map_err(|e| format!("{}: {e}", source.dir.display()))?;
+        Ok(self.model.warm_start_from(&from))
     }
 }
 
@@ -94,7 +131,15 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             rng,
             since_update: 0,
             stats: EmbedderStats::default(),
+            structure: None,
         }
+    }
+
+    /// Measures every snapshot's action embeddings against each action's true displacement
+    /// (`jsae_proto::settings::EnvName::action_motions`); None leaves it unmeasured.
+    pub fn with_action_motions(mut self, motions: Option<Vec<[f64; 2]>>) -> Self {
+        self.structure = motions.and_then(ActionStructure::new);
+        self
     }
 
     /// Statistics so far.
@@ -152,6 +197,10 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         }
         self.since_update = 0;
         self.stats.version += 1;
+        self.stats.action_structure = self.structure.as_ref().and_then(|s| {
+            let (table, d) = self.model.action_embeddings()?;
+            s.measure(&table, d)
+        });
         self.snapshot().map(Some)
     }
 
@@ -204,6 +253,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         self.stats.version = snapshot.version;
         self.stats.model_loss = snapshot.model_loss;
         self.stats.decoder_loss = snapshot.decoder_loss;
+        self.stats.action_structure = snapshot.action_structure;
         Ok(())
     }
 
@@ -214,6 +264,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             bytes: self.model.snapshot_bytes()?,
             model_loss: self.stats.model_loss,
             decoder_loss: self.stats.decoder_loss,
+            action_structure: self.stats.action_structure,
         })
     }
 }
@@ -259,6 +310,7 @@ mod tests {
         };
         let mut t = EmbedderTrainer::new(
             config,
+            Representation::Jsae,
             &StateSpace::discrete(20),
             &ActionSpace::Discrete { n: 8 },
             1,
@@ -322,6 +374,7 @@ mod tests {
         };
         let mut t = EmbedderTrainer::new(
             config,
+            Representation::Jsae,
             &StateSpace::Real { dim: 2 },
             &actions,
             1,
@@ -346,6 +399,7 @@ mod tests {
             // states exactly as the trained one does.
             let mut fresh = EmbedderTrainer::new(
                 t.config.clone(),
+                Representation::Jsae,
                 &StateSpace::Real { dim: 2 },
                 &actions,
                 7,
@@ -365,6 +419,7 @@ mod tests {
     fn malformed_batches_are_refused_and_nothing_is_stored() {
         let mut t = EmbedderTrainer::new(
             EmbeddingConfig::default(),
+            Representation::Jsae,
             &StateSpace::discrete(20),
             &ActionSpace::Discrete { n: 8 },
             1,

@@ -26,35 +26,9 @@ const WALLS: [Rect; 2] = [
 const GOAL: Rect = Rect::new(0.125, 0.175, 0.625, 0.675);
 const START: [f64; 2] = [0.3, 0.1];
 
-/// Motion of every action: `[2^n]` displacements, the longest of norm 1.
-pub fn action_motions(actuators: u32) -> Vec<[f64; 2]> {
-    let n = actuators as usize;
-    let dirs: Vec<[f64; 2]> = (0..n)
-        .map(|k| {
-            let angle = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
-            [angle.cos(), angle.sin()]
-        })
-        .collect();
-    let mut motions: Vec<[f64; 2]> = (0..1usize << n)
-        .map(|mask| {
-            dirs.iter()
-                .enumerate()
-                .filter(|(k, _)| mask >> k & 1 == 1)
-                .fold([0.0, 0.0], |m, (_, d)| [m[0] + d[0], m[1] + d[1]])
-        })
-        .collect();
-    let longest = motions
-        .iter()
-        .map(|m| m[0].hypot(m[1]))
-        .fold(0.0f64, f64::max);
-    if longest > 0.0 {
-        for m in &mut motions {
-            m[0] /= longest;
-            m[1] /= longest;
-        }
-    }
-    motions
-}
+/// Motion of every action (the rule lives with the settings, so services that never step
+/// the gridworld measure embeddings against the same motions).
+pub use jsae_proto::settings::gridworld_action_motions as action_motions;
 
 /// Bin of a coordinate in `[0, 1]`: `min(floor(bins * c), bins - 1)`, never wrapping.
 pub fn bin(c: f64, bins: u32) -> u32 {

@@ -18,6 +18,9 @@
 //! [settings.a12.environment.gridworld]
 //! actuators = 12
 //! ```
+//! A setting may warm-start each run from the matching run of an earlier sweep:
+//! `init_from = "runs/sweeps/NAME/runs/SETTING/{env}-{algo}-seed{seed}"` (`{env}`, `{algo}`
+//! and `{seed}` are filled in per run; the path is relative to where `jsae sweep` runs).
 //! Without `[settings]` there is one setting, `default`, with no overlay.
 
 use std::collections::BTreeMap;
@@ -258,6 +261,15 @@ impl Grid {
         if let Some(n) = self.eval_episodes {
             table.insert("eval_episodes".into(), int(n as u64));
         }
+        // A warm start names the matching run of another sweep: `{env}`, `{algo}` and `{seed}`
+        // in `init_from` are this run's.
+        if let Some(toml::Value::String(from)) = table.get("init_from") {
+            let from = from
+                .replace("{env}", run.env.as_str())
+                .replace("{algo}", run.algo.as_str())
+                .replace("{seed}", &run.seed.to_string());
+            table.insert("init_from".into(), s(&from));
+        }
         table
     }
 }
@@ -301,6 +313,19 @@ mod tests {
         assert_eq!(config["one_process"].as_bool(), Some(true));
         assert_eq!(g.report.threshold, Some(0.9));
         assert_eq!(g.report.column, "success_rate");
+    }
+
+    #[test]
+    fn a_warm_start_names_the_matching_run_of_each_seed() {
+        let text = "envs = [\"gridworld-discrete\"]\nalgos = [\"jsae\"]\nseeds = [7, 8]\n\
+                    env_steps = 10\n[settings.warm]\n\
+                    init_from = \"src/runs/a9/{env}-{algo}-seed{seed}\"\n";
+        let g = Grid::parse(text).expect("valid");
+        let runs = g.runs();
+        assert_eq!(
+            g.run_config(&runs[1])["init_from"].as_str(),
+            Some("src/runs/a9/gridworld-discrete-jsae-seed8")
+        );
     }
 
     #[test]

@@ -101,6 +101,10 @@ pub struct Row {
     pub stochastic_success: Option<Interval>,
     /// Seeds whose deterministic evaluation success is at least 0.9.
     pub eval_solved: Option<usize>,
+    /// Seeds whose last training value of the report column reached the threshold while
+    /// their deterministic evaluation success stayed below it (a greedy policy that loops
+    /// where the sampled one solves the task); None without a threshold or a success notion.
+    pub greedy_below_training: Option<usize>,
     /// Seeds whose training curve reached the threshold, and the mean env steps it took them.
     pub reached: Option<(usize, Option<f64>)>,
     /// The report column's last training value, over seeds.
@@ -221,6 +225,15 @@ pub fn row(runs: &[&RunResult], spec: &ReportSpec) -> Row {
         (n, (n > 0).then(|| stats::mean(&steps)))
     });
     let finals: Option<Vec<f64>> = runs.iter().map(|r| r.curve.last().map(|p| p.1)).collect();
+    let greedy_below_training = match (spec.threshold, &success) {
+        (Some(t), Some(success)) if spec.column == "success_rate" => Some(
+            runs.iter()
+                .zip(success)
+                .filter(|(r, s)| r.curve.last().is_some_and(|p| p.1 >= t) && **s < t)
+                .count(),
+        ),
+        _ => None,
+    };
     Row {
         setting: first.setting.clone(),
         env: first.summary.env.clone(),
@@ -237,6 +250,7 @@ pub fn row(runs: &[&RunResult], spec: &ReportSpec) -> Row {
             .as_ref()
             .map(|v| v.iter().filter(|&&s| s >= 0.9).count()),
         eval_success: success.as_deref().and_then(interval),
+        greedy_below_training,
         stochastic_return: all(|s| s.eval_stochastic_return_mean)
             .as_deref()
             .and_then(interval),
@@ -272,7 +286,10 @@ fn opt_ci(i: Option<&Interval>) -> String {
 /// The markdown table of some rows.
 pub fn markdown_table(rows: &[Row], spec: &ReportSpec) -> String {
     let threshold = spec.threshold.map_or_else(String::new, |t| {
-        format!(" | steps to {} >= {t}", spec.column)
+        format!(
+            " | steps to {c} >= {t} | final {c} >= {t}, det. eval success < {t}",
+            c = spec.column
+        )
     });
     let mut md = format!(
         "| setting | env | algo | seeds | eval return (det.) | IQM | eval success (det.) | \
@@ -281,14 +298,17 @@ pub fn markdown_table(rows: &[Row], spec: &ReportSpec) -> String {
     );
     md.push_str("|---|---|---|---|---|---|---|---|---|---|---|");
     md.push_str(if spec.threshold.is_some() {
-        "---|---|\n"
+        "---|---|---|\n"
     } else {
         "---|\n"
     });
     for r in rows {
         let reached = r.reached.map_or_else(String::new, |(n, steps)| {
             let steps = steps.map_or_else(|| "-".into(), |s| format!("{:.1}k", s / 1000.0));
-            format!(" | {n}/{} ({steps})", r.seeds)
+            let below = r
+                .greedy_below_training
+                .map_or_else(|| "-".into(), |b| format!("{b}/{}", r.seeds));
+            format!(" | {n}/{} ({steps}) | {below}", r.seeds)
         });
         let _ = writeln!(
             md,

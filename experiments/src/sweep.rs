@@ -264,6 +264,7 @@ fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
         "JSAE_ALGO",
         "JSAE_SEED",
         "JSAE_CONFIG",
+        "JSAE_INIT_FROM",
     ] {
         command.env_remove(var);
     }

@@ -53,9 +53,11 @@ fn report_of_known_runs() {
     for (seed, (ret, success, curve)) in (1..).zip(jsae) {
         write_run(&dir, "a9", "jsae", seed, (ret, success), &curve);
     }
-    // ppo: the same return 0.5 on every seed, never reaching the threshold.
+    // ppo: the same return 0.5 and success 0 on every seed; seed 4's training curve ends at
+    // 0.95 (a greedy policy below its sampled one), the others never reach the threshold.
     for seed in 1..=4 {
-        write_run(&dir, "a9", "ppo", seed, (0.5, 0.0), &[0.1, 0.2, 0.3, 0.4]);
+        let last = if seed == 4 { 0.95 } else { 0.4 };
+        write_run(&dir, "a9", "ppo", seed, (0.5, 0.0), &[0.1, 0.2, 0.3, last]);
     }
     // A finished run the sweep file does not name (seed 9) and an unfinished run (no
     // summary.json) are left out.
@@ -86,12 +88,15 @@ fn report_of_known_runs() {
     assert_eq!(j.wall_seconds, 25.0);
     // A constant sample has a point interval.
     assert_eq!((p.eval_return.lo, p.eval_return.hi), (0.5, 0.5));
-    assert_eq!(p.reached, Some((0, None)));
+    assert_eq!(p.reached, Some((1, Some(4000.0))));
+    assert_eq!(j.greedy_below_training, Some(0));
+    assert_eq!(p.greedy_below_training, Some(1));
     assert!(
         made.markdown
             .contains("| a9 | gridworld-discrete | jsae | 4 | 4.00 [")
     );
-    assert!(made.markdown.contains("3/4 (3.0k)"));
+    assert!(made.markdown.contains("3/4 (3.0k) | 0/4"));
+    assert!(made.markdown.contains("1/4 (4.0k) | 1/4"));
     assert!(std::fs::metadata(dir.join("report.json")).is_ok_and(|m| m.len() > 500));
     if let Err(reason) = jsae_experiments::figures::font() {
         // A machine without a TrueType font gets the tables and the reason.

@@ -19,7 +19,7 @@ pub trait MetricsSink: Send {
 }
 
 /// The scalars of one learner update, in the order of `metrics.csv`'s columns.
-pub const UPDATE_COLUMNS: [&str; 23] = [
+pub const UPDATE_COLUMNS: [&str; 24] = [
     "update",
     "env_steps",
     "wall_seconds",
@@ -43,14 +43,16 @@ pub const UPDATE_COLUMNS: [&str; 23] = [
     "policy_version",
     "embedding_version",
     "embedding_loss",
+    "embedding_structure",
 ];
 
 /// One learner update as named scalars (the names are [`UPDATE_COLUMNS`]);
-/// `embedding_loss` is the latest embedding model loss (JSAE).
+/// `embedding_loss` and `embedding_structure` are the latest embedding snapshot's model loss
+/// and action-embedding structure (`jsae_embedder::ActionStructure`; gridworlds only).
 pub fn update_scalars(
     m: &UpdateMetrics,
     wall_seconds: f64,
-    embedding_loss: Option<f32>,
+    embedding: Option<&jsae_proto::EmbeddingSnapshot>,
 ) -> Vec<Scalar> {
     let n = |v: u64| Some(v as f64);
     let values = [
@@ -76,7 +78,8 @@ pub fn update_scalars(
         Some(m.log_std_mean),
         n(m.policy_version),
         n(m.embedding_version),
-        embedding_loss.map(f64::from),
+        embedding.map(|e| f64::from(e.model_loss)),
+        embedding.and_then(|e| e.action_structure).map(f64::from),
     ];
     UPDATE_COLUMNS.into_iter().zip(values).collect()
 }
@@ -107,6 +110,16 @@ impl CsvMetrics {
         let has_header = std::fs::metadata(path).is_ok_and(|m| m.len() > 0);
         if !has_header {
             return Self::create(path, columns);
+        }
+        // A run started by another version may have other columns: refuse, not mix them.
+        let text = std::fs::read_to_string(path)?;
+        let header = text.lines().next().unwrap_or("");
+        if !header.split(',').eq(columns.iter().copied()) {
+            return Err(io::Error::other(format!(
+                "{}: its columns ({header}) are not this version's; resume the run with the \
+                 version that started it",
+                path.display()
+            )));
         }
         let file = std::fs::OpenOptions::new().append(true).open(path)?;
         Ok(Self {

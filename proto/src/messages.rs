@@ -105,10 +105,14 @@ pub struct EmbeddingSnapshot {
     pub version: u64,
     /// The model's record bytes (burn `into_record().into_bytes()`).
     pub bytes: Vec<u8>,
-    /// Model loss (-log P(s'|s,a) or MSE) of the training round that produced it.
+    /// Model loss of the training round that produced it (JSAE: -log P(s'|s,a) or MSE; AE:
+    /// the state reconstruction loss; RA: -log f(a | e(s, s')) or MSE).
     pub model_loss: f32,
     /// Decoder (f) loss of that round (0 for discrete actions).
     pub decoder_loss: f32,
+    /// Structure of the action embeddings against the actions' true displacements (5-NN
+    /// over all-pairs displacement distance; None where the environment has none).
+    pub action_structure: Option<f32>,
 }
 
 /// A versioned copy of the policy (and whatever it needs at inference), learner -> actors.

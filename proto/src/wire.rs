@@ -251,12 +251,13 @@ impl EvalReport {
 }
 
 /// Splits a snapshot's bytes into chunks of at most [`SNAPSHOT_CHUNK`] bytes (one empty
-/// chunk for empty bytes), the losses on every chunk.
+/// chunk for empty bytes), the losses and the structure measure on every chunk.
 pub fn chunk_snapshot(
     version: u64,
     bytes: &[u8],
     model_loss: f32,
     decoder_loss: f32,
+    action_structure: Option<f32>,
 ) -> Vec<pb::SnapshotChunk> {
     let total_len = bytes.len() as u64;
     let pieces: Vec<&[u8]> = if bytes.is_empty() {
@@ -278,6 +279,7 @@ pub fn chunk_snapshot(
                 last: i == last,
                 model_loss,
                 decoder_loss,
+                action_structure,
             };
             offset += data.len() as u64;
             chunk
@@ -287,12 +289,18 @@ pub fn chunk_snapshot(
 
 /// The chunks of an embedding snapshot.
 pub fn embedding_chunks(s: &EmbeddingSnapshot) -> Vec<pb::SnapshotChunk> {
-    chunk_snapshot(s.version, &s.bytes, s.model_loss, s.decoder_loss)
+    chunk_snapshot(
+        s.version,
+        &s.bytes,
+        s.model_loss,
+        s.decoder_loss,
+        s.action_structure,
+    )
 }
 
 /// The chunks of a policy snapshot.
 pub fn policy_chunks(s: &PolicySnapshot) -> Vec<pb::SnapshotChunk> {
-    chunk_snapshot(s.version, &s.bytes, 0.0, 0.0)
+    chunk_snapshot(s.version, &s.bytes, 0.0, 0.0, None)
 }
 
 /// Reassembles snapshots from a stream of chunks; a chunk out of order or of another version
@@ -315,6 +323,8 @@ pub struct Assembled {
     pub model_loss: f32,
     /// Decoder loss (embedding snapshots).
     pub decoder_loss: f32,
+    /// Action-embedding structure (embedding snapshots, where measured).
+    pub action_structure: Option<f32>,
 }
 
 impl Assembled {
@@ -325,6 +335,7 @@ impl Assembled {
             bytes: self.bytes,
             model_loss: self.model_loss,
             decoder_loss: self.decoder_loss,
+            action_structure: self.action_structure,
         }
     }
 
@@ -370,6 +381,7 @@ impl Reassembler {
             bytes: std::mem::take(&mut self.bytes),
             model_loss: chunk.model_loss,
             decoder_loss: chunk.decoder_loss,
+            action_structure: chunk.action_structure.filter(|v| v.is_finite()),
         }))
     }
 }
@@ -390,19 +402,20 @@ mod tests {
             let bytes: Vec<u8> = (0..len).map(|i| (i * 31 % 251) as u8).collect();
             let mut r = Reassembler::default();
             let mut done = None;
-            for c in chunk_snapshot(9, &bytes, 0.5, 0.25) {
+            for c in chunk_snapshot(9, &bytes, 0.5, 0.25, Some(0.4)) {
                 assert!(done.is_none(), "a chunk after the last one");
                 done = r.push(c).expect("in order");
             }
             let a = done.expect("complete");
             assert_eq!((a.version, a.bytes, a.model_loss), (9, bytes, 0.5));
+            assert_eq!(a.action_structure, Some(0.4));
         }
     }
 
     #[test]
     fn out_of_order_chunks_are_refused() {
         let bytes = vec![1u8; SNAPSHOT_CHUNK * 2 + 1];
-        let chunks = chunk_snapshot(3, &bytes, 0.0, 0.0);
+        let chunks = chunk_snapshot(3, &bytes, 0.0, 0.0, None);
         let mut r = Reassembler::default();
         assert_eq!(r.push(chunks[0].clone()), Ok(None));
         assert!(r.push(chunks[2].clone()).is_err());

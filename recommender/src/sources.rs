@@ -42,6 +42,7 @@ pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
                 bytes: read(&path)?,
                 model_loss: 0.0,
                 decoder_loss: 0.0,
+                action_structure: None,
             })
             .map_err(anyhow::Error::msg)?;
             changed = true;

@@ -91,7 +91,14 @@ pub(crate) fn trained_worker(config: &TrainConfig, envs: usize, device: DeviceKi
     c.envs_per_actor = envs;
     let mut worker = ActorWorker::new(&c, 0, device).expect("benchmark environments need no data");
     let (s, a) = (worker.state_space().clone(), worker.action_space().clone());
-    let mut emb = EmbedderTrainer::new(c.embedding.clone(), &s, &a, c.seed, device);
+    let mut emb = EmbedderTrainer::new(
+        c.embedding.clone(),
+        c.algo.representation(),
+        &s,
+        &a,
+        c.seed,
+        device,
+    );
     let rollout = worker.collect(c.pretrain_budget().div_ceil(envs));
     let _ = emb.ingest(&rollout.transitions);
     if let Ok(Some(snap)) = emb.poll() {

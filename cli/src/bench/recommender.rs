@@ -61,12 +61,20 @@ fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>
     })
     .map_err(anyhow::Error::msg)?;
     if algo.representation().needs_embedder() {
-        let model = EmbeddingModel::new(&config.embedding, &states, &actions, &mut rng, &device);
+        let model = EmbeddingModel::new(
+            &config.embedding,
+            algo.representation(),
+            &states,
+            &actions,
+            &mut rng,
+            &device,
+        );
         rec.set_embedding(&EmbeddingSnapshot {
             version: 1,
             bytes: model.to_bytes()?,
             model_loss: 0.0,
             decoder_loss: 0.0,
+            action_structure: None,
         })
         .map_err(anyhow::Error::msg)?;
     }

@@ -115,10 +115,12 @@ fn embedder_in_process(config: &TrainConfig, batches: &[TransitionBatch]) -> f64
     let (states, actions) = config.spaces();
     let (tx, rx) = std::sync::mpsc::sync_channel::<TransitionBatch>(2);
     let embedding = config.embedding.clone();
+    let representation = config.algo.representation();
     let (seed, device) = (config.seed, config.device);
     let started = Instant::now();
     let consumer = std::thread::spawn(move || {
-        let mut trainer = EmbedderTrainer::new(embedding, &states, &actions, seed, device);
+        let mut trainer =
+            EmbedderTrainer::new(embedding, representation, &states, &actions, seed, device);
         let mut n = 0;
         while let Ok(b) = rx.recv() {
             if trainer.ingest(&b).is_ok() {

@@ -215,6 +215,14 @@ impl Learner {
         Ok(())
     }
 
+    /// Starts from another run's policy weights (`--init-from`): loads them (their shape
+    /// must match this run's policy) and keeps this run's version line and counters.
+    pub fn warm_start(&mut self, policy_bytes: &[u8]) -> Result<(), RecordError> {
+        self.policy.load_bytes(policy_bytes)?;
+        self.fused = FusedState::new();
+        Ok(())
+    }
+
     /// Records an actor's step count (also carried by fragments).
     pub fn observe_actor_steps(&mut self, actor_id: u64, steps: u64) {
         let e = self.actor_steps.entry(actor_id).or_insert(0);

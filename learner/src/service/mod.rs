@@ -43,7 +43,7 @@ pub use training::latest_checkpoint;
 pub struct LearnerOptions {
     /// The run directory (metrics.csv, summary.json, checkpoints/).
     pub out: PathBuf,
-    /// The embedder to follow (JSAE): embedding versions and losses for the metrics and the
+    /// The embedder to follow (JSAE, AE, RA): embedding versions and losses for the metrics and the
     /// final embedding checkpoint.
     pub embedder: Option<String>,
 }
@@ -67,6 +67,10 @@ pub async fn serve(
         }
         None => false,
     };
+    if !resumed && let Some(source) = config.init_source()? {
+        learner.warm_start(&source.policy)?;
+        tracing::info!("policy warm-started from {}", source.dir.display());
+    }
     let metrics = if resumed {
         CsvMetrics::append(&out.metrics_csv(), &UPDATE_COLUMNS)?
     } else {

@@ -60,10 +60,13 @@ impl LearnerLoop {
                 Input::Fragment(f) if !evaluating => {
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
-                            let loss = self.embedding.as_ref().map(|s| s.model_loss);
                             let wall = self.started.elapsed().as_secs_f64();
-                            self.metrics
-                                .record(&update_scalars(&report.metrics, wall, loss))?;
+                            let embedding = self.embedding.as_ref();
+                            self.metrics.record(&update_scalars(
+                                &report.metrics,
+                                wall,
+                                embedding,
+                            ))?;
                             tracing::info!(
                                 "update {}: {} env steps, return {:.3}, lag {:.2}",
                                 report.metrics.update,

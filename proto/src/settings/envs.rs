@@ -307,6 +307,17 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
 }
 
 impl EnvName {
+    /// Each discrete action's true displacement, where the environment has one (the
+    /// gridworlds): what an action embedding's structure is measured against.
+    pub fn action_motions(self, config: &EnvConfig) -> Option<Vec<[f64; 2]>> {
+        match self {
+            Self::Gridworld | Self::GridworldDiscrete => {
+                Some(gridworld_action_motions(config.gridworld.actuators))
+            }
+            _ => None,
+        }
+    }
+
     /// The state and action spaces of this environment under `config`.
     pub fn spaces(self, config: &EnvConfig) -> (StateSpace, ActionSpace) {
         match self {
@@ -358,4 +369,34 @@ fn unit_box(dim: usize) -> ActionSpace {
         low: vec![-1.0; dim],
         high: vec![1.0; dim],
     }
+}
+
+/// Motion of every action: `[2^n]` displacements, the longest of norm 1.
+pub fn gridworld_action_motions(actuators: u32) -> Vec<[f64; 2]> {
+    let n = actuators as usize;
+    let dirs: Vec<[f64; 2]> = (0..n)
+        .map(|k| {
+            let angle = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
+            [angle.cos(), angle.sin()]
+        })
+        .collect();
+    let mut motions: Vec<[f64; 2]> = (0..1usize << n)
+        .map(|mask| {
+            dirs.iter()
+                .enumerate()
+                .filter(|(k, _)| mask >> k & 1 == 1)
+                .fold([0.0, 0.0], |m, (_, d)| [m[0] + d[0], m[1] + d[1]])
+        })
+        .collect();
+    let longest = motions
+        .iter()
+        .map(|m| m[0].hypot(m[1]))
+        .fold(0.0f64, f64::max);
+    if longest > 0.0 {
+        for m in &mut motions {
+            m[0] /= longest;
+            m[1] /= longest;
+        }
+    }
+    motions
 }

@@ -8,6 +8,7 @@ mod device;
 mod embedding;
 mod envs;
 mod flags;
+mod init;
 mod ppo;
 mod run;
 
@@ -15,8 +16,10 @@ pub use device::DeviceKind;
 pub use embedding::EmbeddingConfig;
 pub use envs::{
     EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
-    SessionSource, SlotmachineConfig, SyntheticConfig, validate_env_config,
+    SessionSource, SlotmachineConfig, SyntheticConfig, gridworld_action_motions,
+    validate_env_config,
 };
 pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
+pub use init::InitSource;
 pub use ppo::{PpoConfig, UpdatePath};
 pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, Representation, TrainConfig};

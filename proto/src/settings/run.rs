@@ -17,9 +17,9 @@ pub enum Algo {
     Jsae,
     /// PPO on raw states and actions (categorical for discrete actions).
     Ppo,
-    /// PPO on auto-encoder embeddings (baseline; not available yet).
+    /// PPO on auto-encoder embeddings of states and actions (baseline).
     Ae,
-    /// PPO on Chandak et al. action representations (baseline; not available yet).
+    /// PPO on raw states acting through Chandak et al.'s action representations (baseline).
     Ra,
 }
 
@@ -54,9 +54,9 @@ pub enum Representation {
     Raw,
     /// Jointly-learned state and action embeddings: phi, g, T, f (the method).
     Jsae,
-    /// Auto-encoder embeddings of states and of actions (baseline; not available yet).
+    /// Auto-encoder embeddings of states and of actions (baseline).
     AutoEncoder,
-    /// Chandak et al.'s action representations, raw states (baseline; not available yet).
+    /// Chandak et al.'s action representations, raw states (baseline).
     ActionRepresentation,
 }
 
@@ -115,6 +115,11 @@ pub struct TrainConfig {
     /// Run actor, embedder and learner in this process, in lockstep (deterministic for a
     /// seed), instead of as separate service processes talking gRPC over loopback.
     pub one_process: bool,
+    /// A finished run of the same environment and algorithm to warm-start from: the
+    /// embedding parts whose shapes match (phi, T, ...; g only with the same action count)
+    /// and the policy, where its shape matches ([`crate::settings::InitSource`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<PathBuf>,
     /// Environment settings.
     #[serde(default)]
     pub environment: EnvConfig,
@@ -182,6 +187,8 @@ pub struct ConfigFile {
     pub out: Option<PathBuf>,
     /// See [`TrainConfig`].
     pub one_process: Option<bool>,
+    /// See [`TrainConfig`].
+    pub init_from: Option<PathBuf>,
     /// Environment settings (tables `[environment.gridworld]`, `[environment.slotmachine]`).
     pub environment: Option<toml::Value>,
     /// Embedding settings (`[embedding]`).
@@ -273,12 +280,14 @@ impl TrainConfig {
             // found the goal at all in 500k steps; with it every seed tried did.
             exploration.bonus = 0.1;
         }
-        if algo == Algo::Jsae {
+        // The baselines act in an action-embedding space too, with JSAE's PPO settings.
+        let embedded_actions = algo.representation().decodes_actions();
+        if embedded_actions {
             ppo.gae_lambda = 0.97;
             ppo.tanh_mean = true;
             ppo.ent_coef = 0.05;
         }
-        if env == EnvName::Gridworld && algo == Algo::Jsae {
+        if env == EnvName::Gridworld && embedded_actions {
             // With the continuous state the evaluation's mean action ran into a wall for the
             // whole episode on 3 of 3 seeds at 0.05 (the sampled policy reached the goal in
             // every training episode); at 0.01, 1 of 3 (seeds 2 and 3 solved it).
@@ -323,7 +332,7 @@ impl TrainConfig {
                 EnvName::Ant => (32, 8),
                 _ => (20, 6),
             };
-            if algo == Algo::Jsae {
+            if embedded_actions {
                 // The action embeddings lie in (-1, 1)^d and f is fitted only there: a
                 // starting std of 1 would put most samples outside (paper's grid: 0.3-1.0).
                 // Ant at 0.6 learned to fall at once (its control cost outweighs the healthy
@@ -347,6 +356,7 @@ impl TrainConfig {
             eval_episodes: if env == EnvName::Recommender { 200 } else { 20 },
             out: PathBuf::new(),
             one_process: false,
+            init_from: None,
             environment: EnvConfig::default(),
             embedding,
             ppo,
@@ -390,6 +400,7 @@ impl TrainConfig {
         c.eval_episodes = parsed.eval_episodes.unwrap_or(c.eval_episodes);
         c.out = parsed.out.unwrap_or(c.out);
         c.one_process = parsed.one_process.unwrap_or(c.one_process);
+        c.init_from = parsed.init_from.or(c.init_from);
         c.environment = overlay(&c.environment, parsed.environment, path)?;
         c.embedding = overlay(&c.embedding, parsed.embedding, path)?;
         c.ppo = overlay(&c.ppo, parsed.ppo, path)?;
@@ -415,12 +426,6 @@ impl TrainConfig {
     /// Checks everything; the reason names the bad setting.
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |m: String| Err(ConfigError::Invalid(m));
-        if matches!(self.algo, Algo::Ae | Algo::Ra) {
-            return bad(format!(
-                "--algo {} is not available yet (available: jsae, ppo)",
-                self.algo.as_str()
-            ));
-        }
         if self.actors == 0
             || self.envs_per_actor == 0
             || self.rollout_len == 0
@@ -516,8 +521,11 @@ mod tests {
                 .to_string()
                 .contains("pretrain")
         );
-        let c = TrainConfig::defaults(EnvName::Gridworld, Algo::Ra);
-        assert!(c.validate().is_err());
+        for algo in [Algo::Ae, Algo::Ra] {
+            TrainConfig::defaults(EnvName::Gridworld, algo)
+                .validate()
+                .expect("the baselines run");
+        }
         // 2^13 actions x 25 transitions each do not fit the default replay buffer.
         let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
         c.environment.gridworld.actuators = 13;

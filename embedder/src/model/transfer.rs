@@ -1,0 +1,76 @@
+//! Warm starts (`--init-from RUN`): the parts of another run's model whose shapes match this
+//! one's are copied over. Between action spaces of different sizes that is phi, T (and its
+//! hidden layer), the state statistics and RA's inverse model; g, f and the AE's action
+//! decoder come along only when the action counts are equal.
+
+use burn::module::Param;
+use burn::nn::Linear;
+use burn::tensor::Tensor;
+use jsae_nn::Mlp;
+
+use super::EmbeddingModel;
+
+fn same_linear(a: &Option<Linear>, b: &Option<Linear>) -> bool {
+    match (a, b) {
+        (Some(a), Some(b)) => {
+            a.weight.dims() == b.weight.dims()
+                && a.bias.as_ref().map(|p| p.dims()) == b.bias.as_ref().map(|p| p.dims())
+        }
+        _ => false,
+    }
+}
+
+fn same_table(a: &Option<Param<Tensor<2>>>, b: &Option<Param<Tensor<2>>>) -> bool {
+    matches!((a, b), (Some(a), Some(b)) if a.dims() == b.dims())
+}
+
+fn same_mlp(a: &Option<Mlp>, b: &Option<Mlp>) -> bool {
+    match (a, b) {
+        (Some(a), Some(b)) => {
+            a.layers().len() == b.layers().len()
+                && a.layers()
+                    .iter()
+                    .zip(b.layers())
+                    .all(|(x, y)| x.weight.dims() == y.weight.dims())
+        }
+        _ => false,
+    }
+}
+
+impl EmbeddingModel {
+    /// Copies every part of `source` whose shape matches this model's (both of the same
+    /// representation); returns the names of the parts copied.
+    pub fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str> {
+        let (to, from) = (&mut self.net, &source.net);
+        let mut copied = Vec::new();
+        macro_rules! take {
+            ($field:ident, $same:expr) => {
+                if $same(&to.$field, &from.$field) {
+                    to.$field = from.$field.clone();
+                    copied.push(stringify!($field));
+                }
+            };
+        }
+        take!(phi_table, same_table);
+        take!(phi_linear, same_linear);
+        take!(g_table, same_table);
+        take!(g_linear, same_linear);
+        take!(transition_in, same_linear);
+        take!(transition, same_linear);
+        take!(decoder, same_mlp);
+        take!(state_decoder, same_linear);
+        take!(action_decoder, same_linear);
+        take!(inverse, same_mlp);
+        take!(
+            inverse_log_scale,
+            |a: &Option<Param<Tensor<1>>>, b: &Option<Param<Tensor<1>>>| a.is_some() && b.is_some()
+        );
+        let same_norm = matches!((&to.state_norm, &from.state_norm), (Some(_), Some(_)))
+            && self.states == source.states;
+        if same_norm {
+            to.state_norm = from.state_norm.clone();
+            copied.push("state_norm");
+        }
+        copied
+    }
+}
