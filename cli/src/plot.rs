@@ -1,6 +1,7 @@
 //! SVG plots of a run: the learning curve (return and success rate against env steps) and,
 //! for the gridworld, the learned action embeddings coloured by the displacement each
-//! action causes (the paper's Figure 2d).
+//! action causes and the learned state embeddings coloured by position (the paper's
+//! Figure 2d and 2b).
 
 use std::fmt::Write as _;
 use std::path::PathBuf;
@@ -8,10 +9,11 @@ use std::path::PathBuf;
 use jsae_embedder::Embedding;
 use jsae_learner::MetricsTable;
 use jsae_nn::BurnDevice;
-use jsae_proto::EmbeddingSnapshot;
 use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::{EmbeddingSnapshot, StateBatch};
 
-use jsae_envs::{EnvName, gridworld::action_motions};
+use jsae_envs::EnvName;
+use jsae_envs::gridworld::{Gridworld, action_motions};
 use jsae_proto::settings::TrainConfig;
 
 const W: f64 = 640.0;
@@ -203,7 +205,106 @@ pub fn write_run_plots(
         std::fs::write(&path, scatter(&points, &colours, title, "e1", "e2"))?;
         written.push(path);
     }
+    let embeds_states = config.algo.representation().embeds_states();
+    if let Some(embedding) = embedding.filter(|_| gridworld && embeds_states) {
+        let (states, positions) = gridworld_cells(config);
+        let mut phi = Vec::new();
+        embedding.embed_states(&states, &mut phi);
+        let (points, axes) = principal_plane(&phi, embedding.state_dim());
+        let colours: Vec<(f64, f64, f64)> = positions.iter().map(|p| (p[0], p[1], 0.5)).collect();
+        let path = dir.state_embeddings_svg();
+        let title = "state embeddings phi(s) of the cell centres, coloured by position";
+        std::fs::write(&path, scatter(&points, &colours, title, axes.0, axes.1))?;
+        written.push(path);
+    }
     Ok(written)
+}
+
+/// Every cell centre of the gridworld's `bins x bins` lattice, as the run's environment
+/// encodes it (a one-hot cell for gridworld-discrete, the position otherwise), and its
+/// position.
+fn gridworld_cells(config: &TrainConfig) -> (StateBatch, Vec<[f64; 2]>) {
+    let g = &config.environment.gridworld;
+    let bins = g.bins.max(1);
+    let positions: Vec<[f64; 2]> = (0..bins * bins)
+        .map(|i| {
+            let centre = |b: u32| (f64::from(b) + 0.5) / f64::from(bins);
+            [centre(i / bins), centre(i % bins)]
+        })
+        .collect();
+    let states = if config.env == EnvName::GridworldDiscrete {
+        let world = Gridworld::new(g.clone(), true);
+        StateBatch::Categorical {
+            factors: 1,
+            data: positions.iter().map(|&p| world.state_index(p)).collect(),
+        }
+    } else {
+        StateBatch::Real {
+            dim: 2,
+            data: positions.iter().flatten().map(|&v| v as f32).collect(),
+        }
+    };
+    (states, positions)
+}
+
+/// Rows of `data` (`[n, m]`) as 2-D points: the first two coordinates when `m <= 2`, else
+/// the projections on the two leading principal components (power iteration on the
+/// covariance, the second after deflating the first); also the axes' labels.
+fn principal_plane(data: &[f32], m: usize) -> (Vec<(f64, f64)>, (&'static str, &'static str)) {
+    let rows: Vec<Vec<f64>> = data
+        .chunks_exact(m.max(1))
+        .map(|r| r.iter().map(|&v| f64::from(v)).collect())
+        .collect();
+    if m <= 2 {
+        let at = |r: &Vec<f64>, i: usize| r.get(i).copied().unwrap_or(0.0);
+        let points = rows.iter().map(|r| (at(r, 0), at(r, 1))).collect();
+        return (points, ("x1", "x2"));
+    }
+    let n = rows.len().max(1) as f64;
+    let mean: Vec<f64> = (0..m)
+        .map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n)
+        .collect();
+    let mut cov = vec![0.0; m * m];
+    for r in &rows {
+        for i in 0..m {
+            for j in 0..m {
+                cov[i * m + j] += (r[i] - mean[i]) * (r[j] - mean[j]) / n;
+            }
+        }
+    }
+    let first = leading_eigenvector(&cov, m);
+    let lambda: f64 = (0..m)
+        .map(|i| first[i] * (0..m).map(|j| cov[i * m + j] * first[j]).sum::<f64>())
+        .sum();
+    for i in 0..m {
+        for j in 0..m {
+            cov[i * m + j] -= lambda * first[i] * first[j];
+        }
+    }
+    let second = leading_eigenvector(&cov, m);
+    let project = |r: &Vec<f64>, v: &[f64]| (0..m).map(|j| (r[j] - mean[j]) * v[j]).sum::<f64>();
+    let points = rows
+        .iter()
+        .map(|r| (project(r, &first), project(r, &second)))
+        .collect();
+    (points, ("PC 1", "PC 2"))
+}
+
+/// The unit eigenvector of the largest eigenvalue of a symmetric `m x m` matrix, by power
+/// iteration from a fixed start.
+fn leading_eigenvector(a: &[f64], m: usize) -> Vec<f64> {
+    let mut v: Vec<f64> = (0..m).map(|i| 1.0 + i as f64 / m as f64).collect();
+    for _ in 0..500 {
+        let w: Vec<f64> = (0..m)
+            .map(|i| (0..m).map(|j| a[i * m + j] * v[j]).sum())
+            .collect();
+        let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
+        if norm < 1e-12 {
+            break;
+        }
+        v = w.into_iter().map(|x| x / norm).collect();
+    }
+    v
 }
 
 /// The newest embedding checkpoint of a run, if any.
@@ -234,4 +335,34 @@ pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> std::io::Result<Vec<P
         .ok()
     });
     write_run_plots(dir, config, embedding.as_ref())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn principal_plane_finds_the_directions_of_spread() {
+        // Points on a line in 3-D plus a smaller spread along a second, orthogonal direction.
+        let mut data = Vec::new();
+        for t in 0..10 {
+            let (t, u) = (f64::from(t), if t % 2 == 0 { 0.5 } else { -0.5 });
+            data.extend([t + u, 2.0 * t, -t + u].map(|v| v as f32));
+        }
+        let (points, labels) = principal_plane(&data, 3);
+        assert_eq!(labels, ("PC 1", "PC 2"));
+        let spread = |i: usize| {
+            let v: Vec<f64> = points
+                .iter()
+                .map(|p| if i == 0 { p.0 } else { p.1 })
+                .collect();
+            let mean = v.iter().sum::<f64>() / v.len() as f64;
+            v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64
+        };
+        // The line's direction (1, 2, -1)/sqrt(6) carries 6 * var(t) = 49.5; the rest 0.5.
+        assert!((spread(0) - 49.5).abs() < 0.1, "{}", spread(0));
+        assert!((spread(1) - 0.5).abs() < 0.05, "{}", spread(1));
+        let (flat, labels) = principal_plane(&[1.0, 2.0, 3.0, 4.0], 2);
+        assert_eq!((flat, labels), (vec![(1.0, 2.0), (3.0, 4.0)], ("x1", "x2")));
+    }
 }

@@ -6,7 +6,7 @@
 //! DIR/config.toml          every setting of the run
 //! DIR/metrics.csv          one row per learner update
 //! DIR/summary.json         the result, written last
-//! DIR/learning_curve.svg   DIR/action_embeddings.svg (gridworld)
+//! DIR/learning_curve.svg   DIR/action_embeddings.svg, DIR/state_embeddings.svg (gridworld)
 //! DIR/logs/NAME.log        one log per service process (`jsae train` without --one-process)
 //! DIR/checkpoints/         policy-vN.bpk, embedding-vN.bpk, and {policy,embedding}-latest.bpk
 //!                          with their versions in {policy,embedding}-latest.version
@@ -66,6 +66,11 @@ impl RunDir {
     /// The learned action embeddings (gridworld).
     pub fn action_embeddings_svg(&self) -> PathBuf {
         self.root.join("action_embeddings.svg")
+    }
+
+    /// The learned state embeddings (gridworld, representations that embed states).
+    pub fn state_embeddings_svg(&self) -> PathBuf {
+        self.root.join("state_embeddings.svg")
     }
 
     /// The service processes' logs.
