@@ -7,7 +7,7 @@ use jsae_nn::host::math;
 use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
 use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
-use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
+use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead, entropy_log_std_max};
 
 /// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r = exp(log_ratio)`,
 /// and its derivative with respect to the log-probability (a tie, or a NaN, takes the
@@ -114,16 +114,17 @@ impl HostPolicy {
         let entropy = match self.head {
             PolicyHead::Gaussian { dim } => {
                 // the mean entropy is the log-stds' (clamped) sum plus a constant; its
-                // gradient, once per minibatch
+                // gradient, once per minibatch (the bonus stops at `entropy_log_std_max`)
+                let hi = entropy_log_std_max(self.tanh_mean);
                 for (g, v) in grads.log_std.iter_mut().zip(&self.params.log_std) {
-                    if (LOG_STD_MIN..=LOG_STD_MAX).contains(v) {
+                    if (LOG_STD_MIN..=hi).contains(v) {
                         *g -= cfg.ent_coef;
                     }
                 }
                 self.params
                     .log_std
                     .iter()
-                    .map(|v| v.clamp(LOG_STD_MIN, LOG_STD_MAX))
+                    .map(|v| v.clamp(LOG_STD_MIN, hi))
                     .sum::<f32>()
                     + (0.5 + HALF_LOG_2PI) * dim as f32
             }

@@ -23,11 +23,15 @@ fn close(a: &[f32], b: &[f32], what: &str) {
 }
 
 fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
+    check_at(head, tanh_mean, clip_value_loss, -0.3);
+}
+
+fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_std: f32) {
     let device = DeviceKind::Flex.train_device();
     let mut config = PpoConfig {
         tanh_mean,
         clip_value_loss,
-        init_log_std: -0.3,
+        init_log_std,
         ..PpoConfig::default()
     };
     config.normalize_obs = false;
@@ -174,6 +178,39 @@ fn gaussian_loss_and_gradients_equal_burn_autodiff() {
         for clip_value_loss in [false, true] {
             check(PolicyHead::Gaussian { dim: 3 }, tanh_mean, clip_value_loss);
         }
+        // a std beyond E's half-width: the entropy bonus stops there with a tanh mean
+        check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, 0.4);
+    }
+}
+
+#[test]
+fn the_entropy_of_a_tanh_mean_policy_counts_its_std_up_to_one() {
+    let device = DeviceKind::Flex.train_device();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let dim = 2;
+    let x = jsae_nn::tensor2(vec![0.1; 4], 1, 4, &device);
+    let actions = ActionBatch::Continuous {
+        dim,
+        data: vec![0.0; dim],
+    };
+    let at_one = (0.5 + crate::policy::HALF_LOG_2PI) * dim as f32;
+    for (tanh_mean, init_log_std, want) in [
+        (true, 0.4, at_one),
+        (true, -0.3, at_one - 0.6),
+        (false, 0.4, at_one + 0.8),
+    ] {
+        let config = PpoConfig {
+            tanh_mean,
+            init_log_std,
+            ..PpoConfig::default()
+        };
+        let head = PolicyHead::Gaussian { dim };
+        let policy = Policy::new(&config, 4, head, &mut rng, &device);
+        let entropy = jsae_nn::to_vec(policy.evaluate(x.clone(), &actions).entropy)[0];
+        assert!(
+            (entropy - want).abs() < 1e-5,
+            "{tanh_mean} {init_log_std}: {entropy}"
+        );
     }
 }
 
