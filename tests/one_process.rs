@@ -97,7 +97,17 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
         .expect("checkpoints")
         .collect();
     assert_eq!(checkpoints.len(), 2, "policy and embedding checkpoints");
-    assert!(outcome.plots.iter().all(|p| p.exists()) && outcome.plots.len() == 2);
+    // the learning curve and, on the gridworld, the action and the state embeddings
+    let names: Vec<_> = outcome.plots.iter().filter_map(|p| p.file_name()).collect();
+    assert_eq!(
+        names,
+        [
+            "learning_curve.svg",
+            "action_embeddings.svg",
+            "state_embeddings.svg"
+        ]
+    );
+    assert!(outcome.plots.iter().all(|p| p.exists()));
 }
 
 #[test]
