@@ -19,18 +19,6 @@ pub(crate) const LOG_STD_MIN: f32 = -5.0;
 pub(crate) const LOG_STD_MAX: f32 = 2.0;
 pub(crate) const HALF_LOG_2PI: f32 = 0.918_938_5;
 
-/// The log-std up to which the entropy bonus counts. A tanh-bounded mean acts in the
-/// action-embedding space E = [-1, 1]^d (g is tanh-bounded too), where f maps every point
-/// outside E to an action on its rim: a std beyond E's half-width (log-std 0) adds Gaussian
-/// entropy that the decoded actions do not have, so the bonus would raise it for free. Only
-/// the policy gradient moves the std beyond it. Measured on gridworld-discrete (512 and 1,024
-/// actions, 20 seeds): the 4 runs whose log-std ended at 0.7-1.5 had sampled returns of -1.4
-/// to 0.3 (the others 0.8-0.9), and the largest is the run whose greedy policy looped
-/// (README, results).
-pub(crate) fn entropy_log_std_max(tanh_mean: bool) -> f32 {
-    if tanh_mean { 0.0 } else { LOG_STD_MAX }
-}
-
 /// The distribution the policy outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 pub enum PolicyHead {
@@ -96,6 +84,8 @@ pub struct Policy {
     head: PolicyHead,
     input: usize,
     tanh_mean: bool,
+    /// Where the entropy bonus stops counting the log-std (`PpoConfig::entropy_log_std_cap`).
+    entropy_log_std_max: f32,
     device: Device,
 }
 
@@ -137,6 +127,7 @@ impl Policy {
             head,
             input,
             tanh_mean: config.tanh_mean,
+            entropy_log_std_max: config.entropy_log_std_cap().unwrap_or(LOG_STD_MAX),
             device: device.clone(),
         }
     }
@@ -164,6 +155,11 @@ impl Policy {
     /// Whether the Gaussian mean is tanh-bounded.
     pub(crate) fn tanh_mean(&self) -> bool {
         self.tanh_mean
+    }
+
+    /// The log-std up to which the entropy bonus counts.
+    pub(crate) fn entropy_log_std_max(&self) -> f32 {
+        self.entropy_log_std_max
     }
 
     /// The weights.
@@ -272,7 +268,7 @@ impl Policy {
                     .reshape([batch])
                     .sub_scalar(HALF_LOG_2PI * dim as f32);
                 let ent = log_std
-                    .clamp_max(entropy_log_std_max(self.tanh_mean))
+                    .clamp_max(self.entropy_log_std_max)
                     .sum_dim(1)
                     .add_scalar((0.5 + HALF_LOG_2PI) * dim as f32);
                 (

@@ -7,7 +7,7 @@ use jsae_nn::host::math;
 use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
 use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
-use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead, entropy_log_std_max};
+use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
 
 /// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r = exp(log_ratio)`,
 /// and its derivative with respect to the log-probability (a tie, or a NaN, takes the
@@ -115,7 +115,7 @@ impl HostPolicy {
             PolicyHead::Gaussian { dim } => {
                 // the mean entropy is the log-stds' (clamped) sum plus a constant; its
                 // gradient, once per minibatch (the bonus stops at `entropy_log_std_max`)
-                let hi = entropy_log_std_max(self.tanh_mean);
+                let hi = self.entropy_log_std_max;
                 for (g, v) in grads.log_std.iter_mut().zip(&self.params.log_std) {
                     if (LOG_STD_MIN..=hi).contains(v) {
                         *g -= cfg.ent_coef;

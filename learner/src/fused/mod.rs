@@ -72,6 +72,8 @@ pub struct HostPolicy {
     pub head: PolicyHead,
     /// Whether the Gaussian mean is tanh-bounded.
     pub tanh_mean: bool,
+    /// The log-std up to which the entropy bonus counts.
+    pub entropy_log_std_max: f32,
 }
 
 /// One minibatch, or one run of a minibatch's rows ([`minibatch_parts`]), as `ppo::update`
@@ -196,6 +198,7 @@ impl HostPolicy {
             },
             head: policy.head(),
             tanh_mean: policy.tanh_mean(),
+            entropy_log_std_max: policy.entropy_log_std_max(),
         }
     }
 

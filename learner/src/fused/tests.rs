@@ -178,13 +178,15 @@ fn gaussian_loss_and_gradients_equal_burn_autodiff() {
         for clip_value_loss in [false, true] {
             check(PolicyHead::Gaussian { dim: 3 }, tanh_mean, clip_value_loss);
         }
-        // a std beyond E's half-width: the entropy bonus stops there with a tanh mean
-        check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, 0.4);
+        // a std beyond the entropy bonus's cap (with a tanh mean), and one just below it
+        let cap = jsae_proto::settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
+        check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, cap + 0.3);
+        check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, cap - 0.1);
     }
 }
 
 #[test]
-fn the_entropy_of_a_tanh_mean_policy_counts_its_std_up_to_one() {
+fn the_entropy_bonus_counts_the_std_up_to_its_cap() {
     let device = DeviceKind::Flex.train_device();
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let dim = 2;
@@ -193,15 +195,20 @@ fn the_entropy_of_a_tanh_mean_policy_counts_its_std_up_to_one() {
         dim,
         data: vec![0.0; dim],
     };
-    let at_one = (0.5 + crate::policy::HALF_LOG_2PI) * dim as f32;
-    for (tanh_mean, init_log_std, want) in [
-        (true, 0.4, at_one),
-        (true, -0.3, at_one - 0.6),
-        (false, 0.4, at_one + 0.8),
+    let at = |log_std: f32| (0.5 + crate::policy::HALF_LOG_2PI + log_std) * dim as f32;
+    let cap = jsae_proto::settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
+    // (tanh mean, the setting, initial log-std, the entropy the bonus sees)
+    for (tanh_mean, setting, init_log_std, want) in [
+        (true, None, cap + 0.4, at(cap)),
+        (true, None, -0.3, at(-0.3)),
+        (false, None, cap + 0.4, at(cap + 0.4)),
+        (true, Some(0.0), 0.4, at(0.0)),
+        (false, Some(-0.1), 0.4, at(-0.1)),
     ] {
         let config = PpoConfig {
             tanh_mean,
             init_log_std,
+            entropy_log_std_max: setting,
             ..PpoConfig::default()
         };
         let head = PolicyHead::Gaussian { dim };
@@ -209,7 +216,7 @@ fn the_entropy_of_a_tanh_mean_policy_counts_its_std_up_to_one() {
         let entropy = jsae_nn::to_vec(policy.evaluate(x.clone(), &actions).entropy)[0];
         assert!(
             (entropy - want).abs() < 1e-5,
-            "{tanh_mean} {init_log_std}: {entropy}"
+            "{tanh_mean} {setting:?} {init_log_std}: {entropy}"
         );
     }
 }

@@ -21,5 +21,5 @@ pub use envs::{
 };
 pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
 pub use init::InitSource;
-pub use ppo::{PpoConfig, UpdatePath};
+pub use ppo::{EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
 pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, Representation, TrainConfig};
