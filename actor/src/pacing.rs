@@ -12,8 +12,13 @@
 //! times that, never less than the configured `policy_wait_ms`. So a healthy run never moves
 //! on early, whatever the batch size, actor count and update time.
 //!
-//! A new embedding also counts afresh: the learner drops the fragments of the old one, so
-//! the versions they were waiting for will not come from them.
+//! A new embedding starts a new count, but the rollouts still out under the old one stay in
+//! it: the learner goes on taking the old embedding's fragments until the first of the new
+//! one reaches it, so with one actor they are always answered, and counting them as answered
+//! (as this module once did) let the actor run one rollout ahead, at lag 1, for the rest of
+//! the run. With several actors another's fragment of the new embedding may get there first
+//! and the learner drops them, so the actor waits for them only `WAIT_FACTOR` times the
+//! slowest recent update, without the configured floor.
 
 use std::time::{Duration, Instant};
 
@@ -40,6 +45,8 @@ struct Count {
     seen: u64,
     /// Since when the actor waits (if it does).
     waiting: Option<Instant>,
+    /// Rollouts of an earlier embedding are among `sent` and no newer version has come yet.
+    carried: bool,
 }
 
 /// One actor's pacing state.
@@ -77,17 +84,29 @@ impl Pacing {
             sent: 0,
             seen: version.0,
             waiting: None,
+            carried: false,
         };
         let c = match &mut self.count {
-            // a new embedding, or an older policy (a learner restarted from a checkpoint)
-            Some(c) if c.base.1 != version.1 || version.0 < c.base.0 => {
+            // an older policy: a learner restarted from a checkpoint
+            Some(c) if version.0 < c.base.0 => {
                 *c = fresh;
+                c
+            }
+            // a new embedding: the rollouts still out under the old one stay counted
+            Some(c) if c.base.1 != version.1 => {
+                let out = c.sent.saturating_sub(version.0 - c.base.0);
+                *c = Count {
+                    sent: out,
+                    carried: out > 0,
+                    ..fresh
+                };
                 c
             }
             Some(c) => c,
             None => self.count.insert(fresh),
         };
         if version.0 > c.seen {
+            c.carried = false;
             if let Some(since) = c.waiting.take() {
                 let took = now.duration_since(since);
                 self.slowest = took.max(self.slowest.mul_f64(0.9));
@@ -99,6 +118,11 @@ impl Pacing {
             return Pace::Collect;
         }
         let since = *c.waiting.get_or_insert(now);
+        let wait = if c.carried {
+            self.slowest * WAIT_FACTOR
+        } else {
+            wait
+        };
         if now.duration_since(since) < wait {
             return Pace::Wait;
         }
@@ -187,7 +211,33 @@ mod tests {
     }
 
     #[test]
-    fn a_new_embedding_counts_afresh_and_evaluations_do_not_count_as_waiting() {
+    fn a_rollout_out_under_the_old_embedding_keeps_the_lag_at_zero() {
+        let t0 = Instant::now();
+        let mut p = Pacing::new(1, 3000 * MS);
+        assert_eq!(p.pace((0, 1), t0), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((0, 1), t0), Pace::Wait);
+        // updates take 20 ms
+        assert_eq!(p.pace((1, 1), t0 + 20 * MS), Pace::Collect);
+        p.sent();
+        // embedding 2 arrives while the rollout of embedding 1 is out: wait for its answer
+        assert_eq!(p.pace((1, 2), t0 + 25 * MS), Pace::Wait);
+        assert_eq!(p.pace((2, 2), t0 + 40 * MS), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((2, 2), t0 + 40 * MS), Pace::Wait, "lag 0, not 1");
+        assert_eq!(p.pace((3, 2), t0 + 60 * MS), Pace::Collect);
+        p.sent();
+        // embedding 3, and the learner dropped the last rollout of embedding 2 (another
+        // actor's fragment of embedding 3 came first): go on after 3 x 20 ms, not 3 s
+        assert_eq!(p.pace((3, 3), t0 + 70 * MS), Pace::Wait);
+        assert_eq!(p.pace((3, 3), t0 + 129 * MS), Pace::Wait);
+        assert_eq!(p.pace((3, 3), t0 + 130 * MS), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((3, 3), t0 + 130 * MS), Pace::Wait);
+    }
+
+    #[test]
+    fn a_new_embedding_before_any_timed_update_goes_on_at_once_and_evaluations_do_not_wait() {
         let t0 = Instant::now();
         let mut p = Pacing::new(1, 100 * MS);
         assert_eq!(p.pace((5, 1), t0), Pace::Collect);
