@@ -9,9 +9,8 @@
 //! Reads each run's config.toml and newest embedding checkpoint; 20,000 samples, fixed seed.
 
 use anyhow::{Context, Result, bail};
-use jsae_cli::plot::latest_embedding;
+use jsae_cli::plot::load_latest_embedding;
 use jsae_embedder::Embedding;
-use jsae_nn::BurnDevice;
 use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::TrainConfig;
 use jsae_proto::{ActionBatch, ActionSpace};
@@ -35,20 +34,11 @@ fn main() -> Result<()> {
 fn coverage(run: &str) -> Result<String> {
     let dir = RunDir::new(run);
     let config = TrainConfig::from_layers(None, None, Some(&dir.config_toml()))?;
-    let (states, actions) = config.spaces();
-    let &ActionSpace::Continuous { dim, .. } = &actions else {
+    let ActionSpace::Continuous { dim, .. } = config.spaces().1 else {
         bail!("{run}: not a continuous-action run");
     };
-    let snapshot =
-        latest_embedding(&dir).with_context(|| format!("{run}: no embedding checkpoint"))?;
-    let mut embedding = Embedding::from_snapshot(
-        &config.embedding,
-        config.algo.representation(),
-        &states,
-        &actions,
-        &snapshot,
-        &config.device.device(),
-    )?;
+    let mut embedding = load_latest_embedding(&dir, &config)
+        .with_context(|| format!("{run}: no embedding checkpoint"))??;
     let e_dim = embedding.action_dim();
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(SEED);
     let mut uniform =

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use jsae_embedder::Embedding;
 use jsae_learner::MetricsTable;
-use jsae_nn::BurnDevice;
+use jsae_nn::{BurnDevice, RecordError};
 use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::{EmbeddingSnapshot, StateBatch};
 
@@ -319,21 +319,28 @@ pub fn latest_embedding(dir: &RunDir) -> Option<EmbeddingSnapshot> {
     })
 }
 
+/// The newest embedding checkpoint of a run, loaded with the run's settings (None: the run
+/// has no embedding checkpoint).
+pub fn load_latest_embedding(
+    dir: &RunDir,
+    config: &TrainConfig,
+) -> Option<Result<Embedding, RecordError>> {
+    let snapshot = latest_embedding(dir)?;
+    let (states, actions) = config.spaces();
+    Some(Embedding::from_snapshot(
+        &config.embedding,
+        config.algo.representation(),
+        &states,
+        &actions,
+        &snapshot,
+        &config.device.device(),
+    ))
+}
+
 /// Draws the plots of a run directory written by separate services (or by hand): the learning
 /// curve from `metrics.csv`, and the action embeddings of the newest embedding checkpoint.
 pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> std::io::Result<Vec<PathBuf>> {
-    let (states, actions) = config.spaces();
-    let embedding = latest_embedding(dir).and_then(|s| {
-        Embedding::from_snapshot(
-            &config.embedding,
-            config.algo.representation(),
-            &states,
-            &actions,
-            &s,
-            &config.device.device(),
-        )
-        .ok()
-    });
+    let embedding = load_latest_embedding(dir, config).and_then(Result::ok);
     write_run_plots(dir, config, embedding.as_ref())
 }
 
