@@ -21,6 +21,7 @@ use jsae_proto::settings::Representation;
 
 mod baselines;
 mod transfer;
+mod wide_softmax;
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]

@@ -7,6 +7,7 @@
 // `unsafe` is denied everywhere but in `host::dense`, the one call into a raw-pointer kernel
 #![deny(unsafe_code)]
 
+mod allocator;
 mod clip;
 mod device;
 pub mod host;

@@ -17,12 +17,13 @@
 //!   as the model loss. The policy acts on raw states and outputs e.
 
 use burn::module::Param;
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::nn::Linear;
+use burn::tensor::{Device, Tensor, TensorData};
 use jsae_nn::MlpConfig;
 use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
-use super::{EmbeddingModel, EmbeddingNet, cross_entropy, uniform_linear, unreachable_action};
+use super::{EmbeddingModel, EmbeddingNet, uniform_linear, unreachable_action, wide_softmax};
 use crate::EmbeddingConfig;
 
 /// RA's initial logit scale: a unit step in squared distance is 10 nats.
@@ -75,11 +76,12 @@ impl EmbeddingModel {
         let (Some(state_decoder), x) = (&self.net.state_decoder, self.embed_states(states)) else {
             panic!("an AE model has a state decoder")
         };
-        let state_loss = self.state_loss(state_decoder.forward(x), states);
+        let state_loss = self.state_reconstruction_loss(x, state_decoder, states);
         let e = self.embed_actions(actions);
         let action_loss = match (actions, &self.net.action_decoder) {
             (ActionBatch::Discrete(a), Some(decoder)) => {
-                cross_entropy(decoder.forward(e), self.action_column(a))
+                let bias = decoder.bias.as_ref().map(|b| b.val());
+                wide_softmax::linear_cross_entropy(e, decoder.weight.val(), bias, a)
             }
             (ActionBatch::Continuous { .. }, _) => match self.decode(e) {
                 Some(pred) => self.action_mse(pred, actions),
@@ -90,6 +92,40 @@ impl EmbeddingModel {
         (state_loss.reshape([1]), action_loss.reshape([1]))
     }
 
+    /// AE: the state auto-encoder's loss, as [`EmbeddingModel::state_loss`] of
+    /// `decoder(x)`; categorical factors' cross-entropies on the host
+    /// ([`wide_softmax::linear_cross_entropy`] on each factor's columns of the decoder).
+    fn state_reconstruction_loss(
+        &self,
+        x: Tensor<2>,
+        decoder: &Linear,
+        states: &StateBatch,
+    ) -> Tensor<1> {
+        let (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) =
+            (states, &self.states)
+        else {
+            return self.state_loss(decoder.forward(x), states);
+        };
+        let [d, _] = decoder.weight.dims();
+        let mut total: Option<Tensor<1>> = None;
+        let mut start = 0;
+        for (f, &size) in sizes.iter().enumerate() {
+            let w = decoder.weight.val().slice([0..d, start..start + size]);
+            let bias = decoder
+                .bias
+                .as_ref()
+                .map(|b| b.val().narrow(0, start, size));
+            let target: Vec<u32> = data.iter().skip(f).step_by(*factors).copied().collect();
+            let nll = wide_softmax::linear_cross_entropy(x.clone(), w, bias, &target);
+            total = Some(match total {
+                None => nll,
+                Some(t) => t + nll,
+            });
+            start += size;
+        }
+        total.unwrap_or_else(|| Tensor::zeros([1], &self.device))
+    }
+
     /// RA: `(-log f(a | h(s, s')) or MSE, 0)`.
     pub(super) fn inverse_losses(
         &self,
@@ -98,9 +134,10 @@ impl EmbeddingModel {
         next_states: &StateBatch,
     ) -> (Tensor<1>, Tensor<1>) {
         let e = self.infer_action_embeddings(states, next_states);
-        let loss = match (actions, self.action_logits(e.clone())) {
-            (ActionBatch::Discrete(a), Some(logits)) => {
-                cross_entropy(logits, self.action_column(a))
+        let scored = self.action_table().zip(self.net.inverse_log_scale.as_ref());
+        let loss = match (actions, scored) {
+            (ActionBatch::Discrete(a), Some((z, log_scale))) => {
+                wide_softmax::distance_cross_entropy(e, z, log_scale.val(), a)
             }
             (ActionBatch::Continuous { .. }, _) => match self.decode(e) {
                 Some(pred) => self.action_mse(pred, actions),
@@ -120,19 +157,54 @@ impl EmbeddingModel {
         let x = Tensor::cat(vec![self.embed_states(states), self.embed_states(next)], 1);
         inverse.forward(x).tanh()
     }
+}
 
-    /// RA's f over discrete actions: `-scale * |e - z_a|^2` for every action, `[batch, n]`
-    /// (None for continuous actions).
-    pub fn action_logits(&self, e: Tensor<2>) -> Option<Tensor<2>> {
-        let (z, log_scale) = (self.action_table()?, self.net.inverse_log_scale.as_ref()?);
-        let e_sq = e.clone().square().sum_dim(1); // [batch, 1]
-        let z_sq = z.clone().square().sum_dim(1).transpose(); // [1, n]
-        let dist = e_sq + z_sq - e.matmul(z.transpose()) * 2.0;
-        let scale = log_scale.val().exp().reshape([1, 1]);
-        Some(dist * scale.neg())
-    }
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use jsae_proto::settings::Representation;
+    use rand::SeedableRng;
 
-    fn action_column(&self, actions: &[u32]) -> Tensor<2, Int> {
-        self.index_column(actions.iter().map(|&a| i64::from(a)).collect())
+    #[test]
+    fn the_state_decoders_loss_per_factor_equals_the_graphs() {
+        let device = Device::flex().autodiff();
+        let states = StateSpace::Categorical {
+            sizes: vec![5, 7, 3],
+        };
+        let actions = ActionSpace::Discrete { n: 11 };
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let config = EmbeddingConfig::default();
+        let model = EmbeddingModel::new(
+            &config,
+            Representation::AutoEncoder,
+            &states,
+            &actions,
+            &mut rng,
+            &device,
+        );
+        let batch = StateBatch::Categorical {
+            factors: 3,
+            data: vec![0, 6, 2, 4, 0, 1, 3, 3, 0, 1, 5, 2],
+        };
+        let decoder = model
+            .net
+            .state_decoder
+            .as_ref()
+            .expect("an AE has a state decoder");
+        let graph = model.state_loss(decoder.forward(model.embed_states(&batch)), &batch);
+        let host = model.state_reconstruction_loss(model.embed_states(&batch), decoder, &batch);
+        let (g, h) = (
+            jsae_nn::to_vec(graph.clone()),
+            jsae_nn::to_vec(host.clone()),
+        );
+        assert!((g[0] - h[0]).abs() < 1e-5, "{g:?} against {h:?}");
+        let (gg, hg) = (graph.backward(), host.backward());
+        let table = model.net.phi_table.as_ref().expect("categorical states");
+        for p in [table.val(), decoder.weight.val()] {
+            let grad = |g| jsae_nn::to_vec(p.grad(g).expect("a gradient"));
+            for (x, y) in grad(&gg).iter().zip(grad(&hg)) {
+                assert!((x - y).abs() < 1e-5, "{x} against {y}");
+            }
+        }
     }
 }
