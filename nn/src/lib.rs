@@ -2,7 +2,8 @@
 //! seeded initialisation (`init`), a tanh MLP (`mlp`), input normalisation (`obs_norm`), host
 //! <-> tensor conversion and weight records as bytes (`io`), and global gradient-norm clipping
 //! (`clip`), and training on the host without a tensor graph (`host`: MLP forward/backward, Adam,
-//! fast exp/tanh). Every model of the project is a burn module built from these.
+//! fast exp/tanh). Every model of the project is a burn module built from these. The crate also
+//! sets the process's heap allocator (`allocator`: mimalloc), as every binary links it.
 
 // `unsafe` is denied everywhere but in `host::dense`, the one call into a raw-pointer kernel
 #![deny(unsafe_code)]
