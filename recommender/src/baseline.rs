@@ -1,7 +1,7 @@
 //! Reference policies for the recommender, scored like a run's evaluation (same episodes,
-//! same seeds): uniformly random recommendations, and the myopic "most likely next item"
-//! that reads the n-gram model itself (an upper reference a learned policy does not get to
-//! see).
+//! same seeds): uniformly random recommendations, the most popular item whatever the history
+//! (the highest purchase share times value), and the myopic "most likely next item" that reads
+//! the n-gram model itself (an upper reference a learned policy does not get to see).
 
 use jsae_proto::settings::TrainConfig;
 use rand::{Rng, SeedableRng};
@@ -15,7 +15,7 @@ use jsae_envs::{ActionRef, Env};
 /// Returns of one reference policy.
 #[derive(Debug, Clone, Serialize)]
 pub struct BaselineReturns {
-    /// `random` or `most-likely`.
+    /// `random`, `popular` or `most-likely`.
     pub policy: &'static str,
     /// Episodes run.
     pub episodes: usize,
@@ -60,7 +60,15 @@ fn returns(
     }
 }
 
-/// Both reference policies over `episodes` episodes seeded with `seed` (a run's evaluation
+/// The catalogue item with the highest `score` (the lowest slot on ties).
+fn best(env: &RecommenderEnv, score: impl Fn(u32) -> f64) -> u32 {
+    (0..env.model().catalogue().len() as u32)
+        .map(|a| (a, score(a)))
+        .fold((0, f64::NEG_INFINITY), |b, c| if c.1 > b.1 { c } else { b })
+        .0
+}
+
+/// Every reference policy over `episodes` episodes seeded with `seed` (a run's evaluation
 /// uses `config.eval_seed()`).
 pub fn baselines(
     config: &TrainConfig,
@@ -72,16 +80,17 @@ pub fn baselines(
     let random = returns(&mut env, episodes, seed, "random", |_, rng| {
         rng.random_range(0..actions)
     });
+    let popular = returns(&mut env, episodes, seed, "popular", |env, _| {
+        let model = env.model();
+        best(env, |a| model.popularity(a) * model.value(a))
+    });
     let greedy = returns(&mut env, episodes, seed, "most-likely", |env, _| {
         let model = env.model();
         let h = env.history();
         let (before, last) = (h[h.len() - 2], h[h.len() - 1]);
-        (0..model.catalogue().len() as u32)
-            .map(|a| (a, model.probability(before, last, a) * model.value(a)))
-            .fold((0, f64::NEG_INFINITY), |b, c| if c.1 > b.1 { c } else { b })
-            .0
+        best(env, |a| model.probability(before, last, a) * model.value(a))
     });
-    Ok(vec![random, greedy])
+    Ok(vec![random, popular, greedy])
 }
 
 #[cfg(test)]
@@ -99,16 +108,14 @@ mod tests {
         r.synthetic.sessions = 500;
         let first = baselines(&config, 200, 3).expect("runs");
         let again = baselines(&config, 200, 3).expect("runs");
-        assert_eq!(first.len(), 2);
+        assert_eq!(first.len(), 3);
         for (a, b) in first.iter().zip(&again) {
             assert_eq!(a.return_mean, b.return_mean, "{}", a.policy);
         }
-        assert_eq!(
-            (first[0].policy, first[1].policy),
-            ("random", "most-likely")
-        );
+        let names: Vec<_> = first.iter().map(|b| b.policy).collect();
+        assert_eq!(names, ["random", "popular", "most-likely"]);
         assert!(
-            first[1].return_mean > 2.0 * first[0].return_mean,
+            first[2].return_mean > 2.0 * first[0].return_mean,
             "{first:?}"
         );
     }

@@ -267,6 +267,11 @@ impl NgramModel {
         self.value.get(item as usize).copied().unwrap_or(0.0)
     }
 
+    /// The item's share of all purchases (P(item) with no context).
+    pub fn popularity(&self, item: u32) -> f64 {
+        self.popularity.count_of(item) as f64 / self.popularity.total() as f64
+    }
+
     fn after_one(&self, last: u32) -> Option<&Continuations> {
         self.after_one.get(last as usize)
     }
@@ -277,7 +282,7 @@ impl NgramModel {
 
     /// Smoothed P(item | context): `(count + smoothing * popularity) / (total + smoothing)`.
     fn smoothed(&self, context: Option<&Continuations>, item: u32) -> f64 {
-        let pop = self.popularity.count_of(item) as f64 / self.popularity.total() as f64;
+        let pop = self.popularity(item);
         let (count, total) = context.map_or((0, 0), |c| (c.count_of(item), c.total()));
         (count as f64 + self.smoothing * pop) / (total as f64 + self.smoothing)
     }
