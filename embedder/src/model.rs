@@ -382,29 +382,49 @@ impl EmbeddingModel {
         (model_loss.reshape([1]), decoder_loss.reshape([1]))
     }
 
+    /// The sum over a categorical state's factors of `nll(columns, targets)`: each factor's
+    /// columns of a layer's output and that factor's value in every state of `states` (None
+    /// for real states).
+    pub(super) fn per_factor(
+        &self,
+        states: &StateBatch,
+        mut nll: impl FnMut(std::ops::Range<usize>, Vec<u32>) -> Tensor<1>,
+    ) -> Option<Tensor<1>> {
+        let (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) =
+            (states, &self.states)
+        else {
+            return None;
+        };
+        let mut total: Option<Tensor<1>> = None;
+        let mut start = 0;
+        for (f, &size) in sizes.iter().enumerate() {
+            let target = data.iter().skip(f).step_by(*factors).copied().collect();
+            let term = nll(start..start + size, target);
+            total = Some(match total {
+                None => term,
+                Some(t) => t + term,
+            });
+            start += size;
+        }
+        Some(total.unwrap_or_else(|| Tensor::zeros([1], &self.device)))
+    }
+
     /// How well `out` (logits per factor, or a prediction) predicts `target` states: the
     /// summed cross-entropy per factor, or the MSE on normalised states.
     fn state_loss(&self, out: Tensor<2>, target: &StateBatch) -> Tensor<1> {
-        match (target, &self.states) {
-            (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) => {
-                let batch = data.len() / factors;
-                let mut total: Option<Tensor<1>> = None;
-                let mut start = 0;
-                for (f, &size) in sizes.iter().enumerate() {
-                    let logits = out.clone().slice([0..batch, start..start + size]);
-                    let target: Vec<i64> = (0..batch)
-                        .map(|i| i64::from(data[i * factors + f]))
-                        .collect();
-                    let nll = cross_entropy(logits, self.index_column(target));
-                    total = Some(match total {
-                        None => nll,
-                        Some(t) => t + nll,
-                    });
-                    start += size;
-                }
-                total.unwrap_or_else(|| Tensor::zeros([1], &self.device))
-            }
-            (StateBatch::Real { dim, data }, _) => {
+        let batch = out.dims()[0];
+        let per_factor = self.per_factor(target, |columns, t| {
+            let logits = out.clone().slice([0..batch, columns]);
+            cross_entropy(
+                logits,
+                self.index_column(t.into_iter().map(i64::from).collect()),
+            )
+        });
+        if let Some(loss) = per_factor {
+            return loss;
+        }
+        match target {
+            StateBatch::Real { dim, data } => {
                 let target = self.normalised(nn::tensor2(
                     data.clone(),
                     data.len() / dim,

@@ -101,29 +101,14 @@ impl EmbeddingModel {
         decoder: &Linear,
         states: &StateBatch,
     ) -> Tensor<1> {
-        let (StateBatch::Categorical { factors, data }, StateSpace::Categorical { sizes }) =
-            (states, &self.states)
-        else {
-            return self.state_loss(decoder.forward(x), states);
-        };
         let [d, _] = decoder.weight.dims();
-        let mut total: Option<Tensor<1>> = None;
-        let mut start = 0;
-        for (f, &size) in sizes.iter().enumerate() {
-            let w = decoder.weight.val().slice([0..d, start..start + size]);
-            let bias = decoder
-                .bias
-                .as_ref()
-                .map(|b| b.val().narrow(0, start, size));
-            let target: Vec<u32> = data.iter().skip(f).step_by(*factors).copied().collect();
-            let nll = wide_softmax::linear_cross_entropy(x.clone(), w, bias, &target);
-            total = Some(match total {
-                None => nll,
-                Some(t) => t + nll,
-            });
-            start += size;
-        }
-        total.unwrap_or_else(|| Tensor::zeros([1], &self.device))
+        let per_factor = self.per_factor(states, |columns, target| {
+            let w = decoder.weight.val().slice([0..d, columns.clone()]);
+            let bias =
+                (decoder.bias.as_ref()).map(|b| b.val().narrow(0, columns.start, columns.len()));
+            wide_softmax::linear_cross_entropy(x.clone(), w, bias, &target)
+        });
+        per_factor.unwrap_or_else(|| self.state_loss(decoder.forward(x), states))
     }
 
     /// RA: `(-log f(a | h(s, s')) or MSE, 0)`.
