@@ -397,8 +397,14 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
     r.synthetic.sessions = 1_000;
     let embedder = start_embedder(&c).await;
     let learner = start_learner(&c, Some(embedder.url.clone())).await;
-    let rec =
-        std::sync::Arc::new(Recommender::new(&c, jsae_nn::DeviceKind::Flex).expect("recommender"));
+    let rec = std::sync::Arc::new(
+        Recommender::new(
+            &c,
+            jsae_recommender::baseline::PolicyChoice::Learned,
+            jsae_nn::DeviceKind::Flex,
+        )
+        .expect("recommender"),
+    );
     let (listener, rec_url) = bind().await;
     let (stop_rec, signal) = stop_signal();
     let sources = WeightSources {

@@ -95,10 +95,10 @@ pub enum Command {
     Learner(jsae_learner::service::LearnerArgs),
     /// An actor (as `jsae-actor`).
     Actor(jsae_actor::service::ActorArgs),
-    /// Returns of reference recommenders (uniformly random, and the myopic most likely
-    /// next item read from the n-gram model) under a run's evaluation protocol: the
-    /// evaluation seed of a run with `--seed N`, the data of the settings file's
-    /// `[environment.recommender]`.
+    /// Returns of reference recommenders (uniformly random, the most popular item, and the
+    /// myopic most likely next item read from the n-gram model) under a run's evaluation
+    /// protocol: the evaluation seed of a run with `--seed N`, the data of the settings
+    /// file's `[environment.recommender]`.
     RecommenderBaseline {
         /// `--env/--algo/--seed/--config` (the environment must be the recommender; the
         /// settings file's `[environment.recommender]` picks the data; the evaluation seed of
@@ -109,6 +109,9 @@ pub enum Command {
         #[arg(long, default_value_t = 1000)]
         episodes: usize,
     },
+    /// A recommender run judged offline: hit rate@k and NDCG@k on the held-out sessions and
+    /// the simulated return, for the learned policy and each reference policy (JSON).
+    RecommenderEval(crate::recommender_eval::RecommenderEvalArgs),
     /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
     Health(crate::health::HealthArgs),
     /// Ask a Recommender for recommendations (prints the answer as JSON).
@@ -304,6 +307,7 @@ pub fn run(command: Command) -> ExitCode {
         }
         Command::Sweep { file, jobs, out } => crate::experiments::sweep(&file, jobs, &out),
         Command::Eval(args) => crate::eval::main(&args),
+        Command::RecommenderEval(args) => crate::recommender_eval::main(&args),
         Command::Report { dir, out } => {
             crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))
         }

@@ -126,6 +126,22 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
     })
 }
 
+/// The mean return of a run's newest checkpoints, deterministic policy, under the run's
+/// evaluation seed (as at the end of training), over `episodes` episodes.
+pub(crate) fn simulated_return(
+    run: &std::path::Path,
+    episodes: usize,
+) -> Result<f64, (u8, String)> {
+    let out = evaluate(&EvalArgs {
+        run: run.to_owned(),
+        episodes: Some(episodes),
+        seed: None,
+        checkpoint: None,
+        decode: DecodeArg::Mean,
+    })?;
+    Ok(out.eval_return_mean)
+}
+
 /// Runs `jsae eval`: the JSON on stdout; exit 2 for a bad run directory or flag.
 pub fn main(a: &EvalArgs) -> ExitCode {
     match evaluate(a) {

@@ -5,7 +5,7 @@
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
 //! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), `eval`
-//! (`jsae eval`, a run's checkpoints evaluated again), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
+//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
 //! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
 //! services themselves (`jsae embedder|learner|actor|recommender`).
 
@@ -21,6 +21,7 @@ pub mod oneshot;
 pub mod plot;
 pub mod progress;
 pub mod recommender_client;
+pub mod recommender_eval;
 pub mod replay;
 pub mod train;
 

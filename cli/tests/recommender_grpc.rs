@@ -45,6 +45,25 @@ impl Drop for Server {
     }
 }
 
+/// Starts `jsae recommender --listen 127.0.0.1:0 ARGS`; returns it and its address.
+fn start_recommender(args: &[std::ffi::OsString]) -> (Server, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["recommender", "--listen", "127.0.0.1:0"])
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .expect("jsae recommender starts");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut first)
+        .expect("the address line");
+    let server = Server(child);
+    assert!(first.contains("listening on"), "{first}");
+    let addr = first.trim().rsplit(' ').next().expect("an address");
+    (server, addr.to_owned())
+}
+
 fn recommend(url: &str, history: &[&str], k: u32) -> Result<pb::RecommendResponse, tonic::Status> {
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -88,27 +107,9 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         String::from_utf8_lossy(&trained.stderr)
     );
 
-    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["recommender", "--listen", "127.0.0.1:0", "--run"])
-        .arg(&run)
-        .arg("--store-dir")
-        .arg(&store)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("jsae recommender starts");
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut first)
-        .expect("the address line");
-    let server = Server(child);
-    let addr = first
-        .trim()
-        .rsplit(' ')
-        .next()
-        .expect("an address")
-        .to_owned();
-    assert!(first.contains("listening on"), "{first}");
+    let mut args: Vec<std::ffi::OsString> = vec!["--run".into(), run.clone().into()];
+    args.extend(["--store-dir".into(), store.clone().into()]);
+    let (server, addr) = start_recommender(&args);
 
     // the container healthcheck's command
     let health = |service: &str| {
@@ -280,6 +281,81 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         Some(1),
         "nothing answers any more"
     );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `--policy most-likely|popular` need no run: each answers the Python client with its own
+/// ranking (the library's, from the same data), and only most-likely reads the history.
+#[test]
+fn the_reference_policies_are_served_to_a_python_client() {
+    use jsae_recommender::Recommender;
+    use jsae_recommender::baseline::PolicyChoice;
+
+    let python = venv_python();
+    let dir = std::env::temp_dir().join(format!("jsae-recommender-ref-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let settings = dir.join("settings.toml");
+    std::fs::write(&settings, SETTINGS).expect("settings");
+    let config = jsae_proto::settings::TrainConfig::from_layers(None, None, Some(&settings))
+        .expect("settings parse");
+    let ask = |addr: &str, history: &[&str]| -> Vec<String> {
+        let out = Command::new(&python)
+            .arg(repo_root().join("scripts/python/recommender_client.py"))
+            .args(["--ask", addr, "5"])
+            .args(history)
+            .output()
+            .expect("python runs");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let answer: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
+        assert_eq!(answer["policy_version"], 0, "{answer}");
+        answer["items"]
+            .as_array()
+            .expect("items")
+            .iter()
+            .map(|i| i.as_str().expect("an id").to_owned())
+            .collect()
+    };
+    let (first, second) = (["item-0", "item-1"], ["item-5", "item-2"]);
+    for (name, choice) in [
+        ("most-likely", PolicyChoice::MostLikely),
+        ("popular", PolicyChoice::Popular),
+    ] {
+        let mut args: Vec<std::ffi::OsString> = vec!["--policy".into(), name.into()];
+        args.extend(["--config".into(), settings.clone().into()]);
+        let (_server, addr) = start_recommender(&args);
+        let library = Recommender::new(&config, choice, jsae_nn::DeviceKind::Flex)
+            .expect("the same recommender in process");
+        let expected = |history: &[&str]| -> Vec<String> {
+            let history: Vec<String> = history.iter().map(|h| (*h).to_owned()).collect();
+            let r = library.recommend(&history, 5).expect("ranks");
+            r.items.into_iter().map(|(id, _)| id).collect()
+        };
+        let (a, b) = (ask(&addr, &first), ask(&addr, &second));
+        assert_eq!(a, expected(&first), "{name}");
+        assert_eq!(b, expected(&second), "{name}");
+        assert_eq!(
+            a == b,
+            choice == PolicyChoice::Popular,
+            "{name}: {a:?} {b:?}"
+        );
+    }
+    // a reference policy follows no learner
+    let out = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "recommender",
+            "--policy",
+            "popular",
+            "--learner",
+            "http://127.0.0.1:1",
+        ])
+        .output()
+        .expect("jsae runs");
+    assert_eq!(out.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

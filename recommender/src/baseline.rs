@@ -1,16 +1,95 @@
-//! Reference policies for the recommender, scored like a run's evaluation (same episodes,
-//! same seeds): uniformly random recommendations, the most popular item whatever the history
-//! (the highest purchase share times value), and the myopic "most likely next item" that reads
-//! the n-gram model itself (an upper reference a learned policy does not get to see).
+//! Reference policies for the recommender: the most popular item whatever the history (the
+//! highest purchase share times value) and the myopic "most likely next item" that reads the
+//! n-gram model itself (an upper reference a learned policy does not get to see). One home
+//! for their scores: the returns here (scored like a run's evaluation, same episodes and
+//! seeds, beside uniformly random recommendations), the service's `--policy`, and the offline
+//! evaluation's rankings.
 
 use jsae_proto::settings::TrainConfig;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
-use jsae_envs::recsys::RecommenderEnv;
-use jsae_envs::recsys::RecsysError;
+use jsae_envs::recsys::{NgramModel, RecommenderEnv, RecsysError};
 use jsae_envs::{ActionRef, Env};
+
+/// What a Recommender serves (`jsae recommender --policy`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum PolicyChoice {
+    /// The run's policy (JSAE: nearest items to its action embedding; PPO: its softmax).
+    #[default]
+    Learned,
+    /// The most likely next item under the n-gram model (reads the simulator's model).
+    MostLikely,
+    /// The most popular item, whatever the history.
+    Popular,
+}
+
+impl PolicyChoice {
+    /// The reference policy chosen, None for the learned one.
+    pub fn reference(self) -> Option<Reference> {
+        match self {
+            Self::Learned => None,
+            Self::MostLikely => Some(Reference::MostLikely),
+            Self::Popular => Some(Reference::Popular),
+        }
+    }
+}
+
+/// A policy that reads the n-gram model instead of learning.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Reference {
+    /// The highest purchase share times value, whatever the history.
+    Popular,
+    /// The highest P(next = item | the last two purchases) times value.
+    MostLikely,
+}
+
+impl Reference {
+    /// Every reference policy, in the order reports list them.
+    pub const ALL: [Self; 2] = [Self::Popular, Self::MostLikely];
+
+    /// The name reports and `--policy` use.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Popular => "popular",
+            Self::MostLikely => "most-likely",
+        }
+    }
+
+    /// The score of recommending `item` in `state` (the last purchases, oldest first, "none"
+    /// slots included; at least two).
+    pub fn score(self, model: &NgramModel, state: &[u32], item: u32) -> f64 {
+        match self {
+            Self::Popular => model.popularity(item) * model.value(item),
+            Self::MostLikely => {
+                let n = state.len();
+                model.probability(state[n - 2], state[n - 1], item) * model.value(item)
+            }
+        }
+    }
+
+    /// The `k` best catalogue items in `state` as `(item, score)`, best first (ties: the
+    /// lower slot first).
+    pub fn rank(self, model: &NgramModel, state: &[u32], k: usize) -> Vec<(u32, f64)> {
+        let mut all: Vec<(u32, f64)> = (0..model.catalogue().len() as u32)
+            .map(|a| (a, self.score(model, state, a)))
+            .collect();
+        let order = |a: &(u32, f64), b: &(u32, f64)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+        let k = k.min(all.len());
+        if k > 0 && k < all.len() {
+            all.select_nth_unstable_by(k - 1, order);
+        }
+        all.truncate(k);
+        all.sort_by(order);
+        all
+    }
+
+    /// The best item in `state`.
+    pub fn best(self, model: &NgramModel, state: &[u32]) -> u32 {
+        self.rank(model, state, 1).first().map_or(0, |b| b.0)
+    }
+}
 
 /// Returns of one reference policy.
 #[derive(Debug, Clone, Serialize)]
@@ -60,14 +139,6 @@ fn returns(
     }
 }
 
-/// The catalogue item with the highest `score` (the lowest slot on ties).
-fn best(env: &RecommenderEnv, score: impl Fn(u32) -> f64) -> u32 {
-    (0..env.model().catalogue().len() as u32)
-        .map(|a| (a, score(a)))
-        .fold((0, f64::NEG_INFINITY), |b, c| if c.1 > b.1 { c } else { b })
-        .0
-}
-
 /// Every reference policy over `episodes` episodes seeded with `seed` (a run's evaluation
 /// uses `config.eval_seed()`).
 pub fn baselines(
@@ -80,17 +151,17 @@ pub fn baselines(
     let random = returns(&mut env, episodes, seed, "random", |_, rng| {
         rng.random_range(0..actions)
     });
-    let popular = returns(&mut env, episodes, seed, "popular", |env, _| {
-        let model = env.model();
-        best(env, |a| model.popularity(a) * model.value(a))
-    });
-    let greedy = returns(&mut env, episodes, seed, "most-likely", |env, _| {
-        let model = env.model();
-        let h = env.history();
-        let (before, last) = (h[h.len() - 2], h[h.len() - 1]);
-        best(env, |a| model.probability(before, last, a) * model.value(a))
-    });
-    Ok(vec![random, popular, greedy])
+    let mut all = vec![random];
+    for reference in Reference::ALL {
+        all.push(returns(
+            &mut env,
+            episodes,
+            seed,
+            reference.name(),
+            |env, _| reference.best(env.model(), env.history()),
+        ));
+    }
+    Ok(all)
 }
 
 #[cfg(test)]

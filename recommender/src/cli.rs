@@ -8,6 +8,7 @@ use jsae_proto::net::{self, Failure};
 use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{EmbedderFlag, EnvName, RunFlags, TrainConfig};
 
+use crate::baseline::PolicyChoice;
 use crate::grpc::serve;
 use crate::scoring::Recommender;
 use crate::sources::{RUN_POLL, WeightSources};
@@ -36,6 +37,10 @@ pub struct RecommenderArgs {
     /// kept].
     #[arg(long, env = "JSAE_STORE_DIR")]
     pub store_dir: Option<PathBuf>,
+    /// What to serve: the run's policy, or a reference policy that reads the n-gram model
+    /// (needs no run: `--env recommender` or `--config` give the data) for A/B tests.
+    #[arg(long, value_enum, env = "JSAE_POLICY", default_value = "learned")]
+    pub policy: PolicyChoice,
     /// burn device [default: flex].
     #[arg(long, value_enum, env = "JSAE_DEVICE")]
     pub device: Option<DeviceKind>,
@@ -70,8 +75,21 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
     }
     c.device = args.device.unwrap_or(c.device);
     c.validate().map_err(|e| e.to_string())?;
+    if args.policy.reference().is_some() {
+        if args.learner.is_some() {
+            return Err(format!(
+                "--policy {} reads the n-gram model: it takes no --learner",
+                args.policy.reference().map_or("", |r| r.name())
+            ));
+        }
+        return Ok(c);
+    }
     if args.learner.is_none() && args.run.is_none() {
-        return Err("give --learner URL (follow a run) or --run DIR (a finished run)".into());
+        return Err(
+            "give --learner URL (follow a run) or --run DIR (a finished run), or serve a \
+             reference policy (--policy most-likely|popular)"
+                .into(),
+        );
     }
     if args.learner.is_some() {
         args.embedder
@@ -100,16 +118,18 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
                 }
             }
             let config = config_of(&args).map_err(Failure::config)?;
-            let rec = Recommender::new(&config, config.device).map_err(Failure::config)?;
+            let rec =
+                Recommender::new(&config, args.policy, config.device).map_err(Failure::config)?;
             if !rec.has_store() {
                 tracing::warn!(
                     "recommender: no session store (--store-dir): sessions are not kept"
                 );
             }
+            let learned = args.policy == PolicyChoice::Learned;
             let sources = WeightSources {
-                learner: args.learner.clone(),
-                embedder: args.embedder.embedder.clone(),
-                run: args.run.clone(),
+                learner: args.learner.clone().filter(|_| learned),
+                embedder: args.embedder.embedder.clone().filter(|_| learned),
+                run: args.run.clone().filter(|_| learned),
             };
             let listener = net::bind(&args.listen).await?;
             println!("jsae recommender listening on {}", listener.local_addr()?);

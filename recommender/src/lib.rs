@@ -7,7 +7,8 @@
 //! Layout: `scoring` (the core: weights in use, state from a history, JSAE's nearest items or
 //! PPO's most likely ones, the store), `grpc` (the handlers and `serve`), `sources` (weights
 //! followed from a live run or loaded from a run directory's checkpoints), `cli` (`jsae
-//! recommender`'s flags and main), `baseline` (random and most-likely-next-item references).
+//! recommender`'s flags and main), `baseline` (the reference policies: popular, most likely next item; with random, their returns),
+//! `offline` (hit rate@k and NDCG@k on held-out sessions).
 //! The environment, data and session store are `jsae_envs::recsys`.
 
 #![forbid(unsafe_code)]
@@ -15,6 +16,7 @@
 pub mod baseline;
 pub mod cli;
 pub mod grpc;
+pub mod offline;
 pub mod scoring;
 pub mod sources;
 

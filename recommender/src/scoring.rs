@@ -5,6 +5,8 @@
 //! - JSAE: `x = phi(state)`, the policy's mean action embedding `e`, then the `k` items whose
 //!   `g` rows are nearest to `e` (score: minus the distance). PPO: the `k` most likely items
 //!   of the policy's softmax (score: the probability).
+//! - A reference policy (`--policy most-likely|popular`) ranks by its score instead
+//!   ([`crate::baseline::Reference`]); it needs no weights.
 //! - The state is the last `history` known items of the request (items outside the model's
 //!   catalogue are ignored and counted), padded with "none" as at the start of an episode.
 
@@ -13,10 +15,12 @@ use std::sync::{Arc, Mutex, RwLock};
 use jsae_agent::{SwapError, Weights};
 use jsae_envs::recsys::sessions::{MAX_ID_BYTES, Session};
 use jsae_envs::recsys::store::SessionStore;
-use jsae_envs::recsys::{ModelHandle, RecsysError, model_handle};
+use jsae_envs::recsys::{ModelHandle, NgramModel, RecsysError, model_handle};
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_proto::settings::{EnvName, TrainConfig};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace};
+
+use crate::baseline::PolicyChoice;
 
 /// Longest `history` a Recommend request may carry.
 pub const MAX_HISTORY: usize = 1000;
@@ -38,9 +42,21 @@ pub struct Recommendation {
     pub unknown_items: u32,
 }
 
+/// Items ranked for one state, with the versions of the weights that ranked them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Ranking {
+    /// `(catalogue slot, score)`, best first.
+    pub items: Vec<(u32, f32)>,
+    /// The policy version used (0 for a reference policy).
+    pub policy_version: u64,
+    /// The embedding version used (0 for PPO and the reference policies).
+    pub embedding_version: u64,
+}
+
 /// The recommender's core, without the transport.
 pub struct Recommender {
     config: TrainConfig,
+    policy: PolicyChoice,
     model: Arc<ModelHandle>,
     states: StateSpace,
     /// The weights in use, replaced whole (readers keep the `Arc` they took).
@@ -53,6 +69,7 @@ impl std::fmt::Debug for Recommender {
         let w = self.weights();
         f.debug_struct("Recommender")
             .field("algo", &self.config.algo)
+            .field("policy", &self.policy)
             .field("policy_version", &w.policy_version())
             .field("embedding_version", &w.embedding_version())
             .finish()
@@ -60,9 +77,13 @@ impl std::fmt::Debug for Recommender {
 }
 
 impl Recommender {
-    /// A recommender for a `recommender` run's settings (the n-gram model's data and session
-    /// store are the settings' `environment.recommender`).
-    pub fn new(config: &TrainConfig, device: DeviceKind) -> Result<Self, RecsysError> {
+    /// A recommender serving `policy` for a `recommender` run's settings (the n-gram model's
+    /// data and session store are the settings' `environment.recommender`).
+    pub fn new(
+        config: &TrainConfig,
+        policy: PolicyChoice,
+        device: DeviceKind,
+    ) -> Result<Self, RecsysError> {
         if config.env != EnvName::Recommender {
             return Err(RecsysError::Data(format!(
                 "the settings are for --env {}, not recommender",
@@ -80,6 +101,7 @@ impl Recommender {
         let weights = Weights::new(config, &states, &actions, &device.device());
         Ok(Self {
             config: config.clone(),
+            policy,
             model,
             states,
             weights: RwLock::new(Arc::new(weights)),
@@ -115,6 +137,16 @@ impl Recommender {
     /// The settings served.
     pub fn config(&self) -> &TrainConfig {
         &self.config
+    }
+
+    /// The policy served.
+    pub fn policy(&self) -> PolicyChoice {
+        self.policy
+    }
+
+    /// The n-gram model in use now.
+    pub fn model(&self) -> Arc<NgramModel> {
+        self.model.current()
     }
 
     /// The policy version in use (None before the first).
@@ -165,24 +197,59 @@ impl Recommender {
                 "k must be in 1..={items} (the catalogue's size), got {k}"
             )));
         }
+        let known: Vec<u32> = history.iter().filter_map(|h| catalogue.slot(h)).collect();
+        let unknown_items = (history.len() - known.len()) as u32;
+        let state = self.state_after(&model, &known);
+        let ranking = self.rank(&model, &state, k as usize)?;
+        Ok(Recommendation {
+            items: ranking
+                .items
+                .into_iter()
+                .filter_map(|(slot, score)| catalogue.id(slot).map(|id| (id.to_owned(), score)))
+                .collect(),
+            policy_version: ranking.policy_version,
+            embedding_version: ranking.embedding_version,
+            unknown_items,
+        })
+    }
+
+    /// The state after purchases of catalogue slots (oldest first): the last `history` of
+    /// them, padded with "none" in front as at the start of an episode.
+    pub fn state_after(&self, model: &NgramModel, known: &[u32]) -> Vec<u32> {
+        let n = self.config.environment.recommender.history as usize;
+        let mut state = vec![model.catalogue().none(); n];
+        let tail = &known[known.len().saturating_sub(n)..];
+        state[n - tail.len()..].copy_from_slice(tail);
+        state
+    }
+
+    /// The `k` best catalogue items of `model` in `state` (from [`Self::state_after`]) under
+    /// the policy served.
+    pub fn rank(&self, model: &NgramModel, state: &[u32], k: usize) -> Result<Ranking, RpcError> {
+        let items = model.catalogue().len();
+        if let Some(reference) = self.policy.reference() {
+            return Ok(Ranking {
+                items: reference
+                    .rank(model, state, k)
+                    .into_iter()
+                    .map(|(a, score)| (a, score as f32))
+                    .collect(),
+                policy_version: 0,
+                embedding_version: 0,
+            });
+        }
         let weights = self.weights();
         let Some((policy_version, policy)) = weights.policy() else {
             return Err(RpcError::Unavailable(
                 "no policy yet: waiting for the learner's first snapshot".into(),
             ));
         };
-        let known: Vec<u32> = history.iter().filter_map(|h| catalogue.slot(h)).collect();
-        let unknown_items = (history.len() - known.len()) as u32;
-        let n = self.config.environment.recommender.history as usize;
-        let mut state = vec![catalogue.none(); n];
-        let tail = &known[known.len().saturating_sub(n)..];
-        state[n - tail.len()..].copy_from_slice(tail);
         let batch = StateBatch::Categorical {
-            factors: n,
-            data: state,
+            factors: state.len(),
+            data: state.to_vec(),
         };
         let mut x = Vec::new();
-        let (scored, embedding_version) = if self.config.algo.representation().decodes_actions() {
+        if self.config.algo.representation().decodes_actions() {
             let (Some(embedding), Some(nearest)) = (
                 weights.embedding(),
                 weights.embedding().and_then(|e| e.nearest()),
@@ -194,23 +261,21 @@ impl Recommender {
             embedding.embed_states(&batch, &mut x);
             let e = policy.head_outputs(&x);
             // score: minus the Euclidean distance, nearest first
-            let nearest = nearest.k_nearest(&e, k as usize, items);
-            let scored = nearest.into_iter().map(|(a, d)| (a, -d)).collect();
-            (scored, embedding.version())
+            let nearest = nearest.k_nearest(&e, k, items);
+            Ok(Ranking {
+                items: nearest.into_iter().map(|(a, d)| (a, -d)).collect(),
+                policy_version,
+                embedding_version: embedding.version(),
+            })
         } else {
             batch.write_features(&self.states, &mut x);
             let logits = policy.head_outputs(&x);
-            (most_likely(&logits, items, k as usize), 0)
-        };
-        Ok(Recommendation {
-            items: scored
-                .into_iter()
-                .filter_map(|(slot, score)| catalogue.id(slot).map(|id| (id.to_owned(), score)))
-                .collect(),
-            policy_version,
-            embedding_version,
-            unknown_items,
-        })
+            Ok(Ranking {
+                items: most_likely(&logits, items, k),
+                policy_version,
+                embedding_version: 0,
+            })
+        }
     }
 
     /// Appends accepted sessions to the store (synced before it returns).

@@ -1,10 +1,12 @@
 """A Recommender client in Python (grpcio), built from proto/jsae.proto at run time.
 
 Usage: recommender_client.py ADDR KNOWN_ITEM [KNOWN_ITEM ...]
+       recommender_client.py --ask ADDR K ITEM [ITEM ...]
 
 Checks the contract from another language: health, good and malformed sessions, good and
 bad Recommend requests. Prints one JSON object with what it saw (the Rust test reads it) and
-exits non-zero on the first check that fails.
+exits non-zero on the first check that fails. With --ask it only asks for the K best items
+after the history ITEM... (any --policy the service serves) and prints the answer as JSON.
 """
 
 import json
@@ -44,12 +46,29 @@ def expect_code(call, code, what):
     sys.exit(f"{what}: succeeded, expected {code}")
 
 
+def connect(addr):
+    limit = 64 * 1024 * 1024
+    return grpc.insecure_channel(addr, options=[
+        ("grpc.max_send_message_length", limit), ("grpc.max_receive_message_length", limit)])
+
+
+def ask(addr, k, history):
+    pb, rpc = build_stubs(tempfile.mkdtemp(prefix="jsae-stubs-"))
+    stub = rpc.RecommenderStub(connect(addr))
+    r = stub.Recommend(pb.RecommendRequest(history=history, k=k), timeout=10)
+    print(json.dumps({"items": [i.item_id for i in r.items], "scores": [i.score for i in r.items],
+                      "policy_version": r.policy_version,
+                      "embedding_version": r.embedding_version,
+                      "unknown_items": r.unknown_items}))
+
+
 def main():
+    if sys.argv[1] == "--ask":
+        ask(sys.argv[2], int(sys.argv[3]), sys.argv[4:])
+        return
     addr, known = sys.argv[1], sys.argv[2:]
     pb, rpc = build_stubs(tempfile.mkdtemp(prefix="jsae-stubs-"))
-    limit = 64 * 1024 * 1024
-    channel = grpc.insecure_channel(addr, options=[
-        ("grpc.max_send_message_length", limit), ("grpc.max_receive_message_length", limit)])
+    channel = connect(addr)
     seen = {}
 
     health = health_pb2_grpc.HealthStub(channel)

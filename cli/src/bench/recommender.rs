@@ -49,7 +49,11 @@ pub struct RecommendRates {
 fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>)> {
     let config = TrainConfig::defaults(EnvName::Recommender, algo);
     config.validate()?;
-    let rec = Recommender::new(&config, DeviceKind::Flex)?;
+    let rec = Recommender::new(
+        &config,
+        jsae_recommender::baseline::PolicyChoice::Learned,
+        DeviceKind::Flex,
+    )?;
     let (states, actions) = EnvName::Recommender.spaces(&config.environment);
     let device = DeviceKind::Flex.device();
     let mut rng = ChaCha8Rng::seed_from_u64(1);

@@ -49,6 +49,39 @@ pub fn load_sessions(config: &RecommenderConfig) -> Result<Vec<Session>, RecsysE
     }
 }
 
+/// Whether a session of the data is held out for offline evaluation: FNV-1a (64 bit) of its
+/// id, mixed by SplitMix64's finaliser (FNV alone leaves the high bits of ids that differ in
+/// their last characters, `user-1`, `user-2`, ..., nearly equal), as a share of the hash
+/// range, below `share`. The same ids give the same split on every machine and whatever the
+/// order of the file.
+pub fn is_held_out(session_id: &str, share: f64) -> bool {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for b in session_id.bytes() {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^= h >> 31;
+    (h as f64) < share * (u64::MAX as f64)
+}
+
+/// The data's sessions split into (training, held out) by [`is_held_out`] with the settings'
+/// `holdout`.
+pub fn split_sessions(
+    sessions: Vec<Session>,
+    config: &RecommenderConfig,
+) -> (Vec<Session>, Vec<Session>) {
+    sessions
+        .into_iter()
+        .partition(|s| !is_held_out(&s.session_id, config.holdout))
+}
+
+/// The held-out sessions of the settings' data (none when `holdout` is 0).
+pub fn held_out_sessions(config: &RecommenderConfig) -> Result<Vec<Session>, RecsysError> {
+    Ok(split_sessions(load_sessions(config)?, config).1)
+}
+
 struct Refresh {
     catalogue: Catalogue,
     stored: Vec<Session>,
@@ -121,9 +154,10 @@ fn pinned_catalogue(
 }
 
 impl ModelHandle {
-    /// Reads the data (and the store), makes the catalogue and builds the model.
+    /// Reads the data (without its held-out sessions) and the store, makes the catalogue and
+    /// builds the model.
     pub fn load(config: &RecommenderConfig) -> Result<Self, RecsysError> {
-        let base = load_sessions(config)?;
+        let (base, held_out) = split_sessions(load_sessions(config)?, config);
         let capacity = config.top_n as usize;
         let (stored, offset) = match store_dir(config) {
             Some(dir) => store::read_since(dir, 0)?,
@@ -145,8 +179,9 @@ impl ModelHandle {
         let model = NgramModel::build(catalogue.clone(), base.iter().chain(&stored), config)
             .ok_or_else(|| RecsysError::Data("no session buys anything".into()))?;
         tracing::info!(
-            "recommender: {} sessions, {} items, {} two-item contexts",
+            "recommender: {} sessions ({} more held out), {} items, {} two-item contexts",
             model.sessions(),
+            held_out.len(),
             model.catalogue().len(),
             model.contexts()
         );
@@ -253,6 +288,40 @@ mod tests {
                 })
                 .collect(),
         }
+    }
+
+    #[test]
+    fn the_held_out_split_is_stable_and_has_about_the_asked_share() {
+        let config = RecommenderConfig {
+            source: SessionSource::Synthetic,
+            holdout: 0.2,
+            ..RecommenderConfig::default()
+        };
+        let sessions = load_sessions(&config).expect("generated");
+        let (train, held) = split_sessions(sessions.clone(), &config);
+        assert_eq!(train.len() + held.len(), sessions.len());
+        let share = held.len() as f64 / sessions.len() as f64;
+        assert!((0.18..0.22).contains(&share), "{share}");
+        let mut reversed = sessions;
+        reversed.reverse();
+        let (_, again) = split_sessions(reversed, &config);
+        let ids = |v: &[Session]| {
+            let mut ids: Vec<String> = v.iter().map(|s| s.session_id.clone()).collect();
+            ids.sort();
+            ids
+        };
+        assert_eq!(
+            ids(&held),
+            ids(&again),
+            "the order of the file does not matter"
+        );
+        assert!(held.iter().all(|s| is_held_out(&s.session_id, 0.2)));
+        assert!(!is_held_out("any", 0.0));
+        // ids that differ only at the end (Instacart's `user-N`) split too
+        let users = (0..1000)
+            .filter(|u| is_held_out(&format!("user-{u}"), 0.1))
+            .count();
+        assert!((70..130).contains(&users), "{users}");
     }
 
     #[test]

@@ -14,7 +14,7 @@ pub mod sessions;
 pub mod store;
 pub mod synthetic;
 
-pub use data::{ModelHandle, model_handle};
+pub use data::{ModelHandle, held_out_sessions, is_held_out, model_handle};
 pub use env::RecommenderEnv;
 pub use ngram::{Catalogue, NgramModel};
 pub use sessions::{Purchase, Session};

@@ -120,6 +120,11 @@ pub struct RecommenderConfig {
     pub store_dir: std::path::PathBuf,
     /// How often the n-gram model is rebuilt from the store (seconds).
     pub refresh_seconds: u64,
+    /// Share of the data's sessions held out for offline evaluation (`jsae recommender-eval`):
+    /// chosen by a hash of the session id before the catalogue and the n-gram model are built,
+    /// so neither the simulator nor a policy trained in it sees them. Submitted sessions all
+    /// join the model.
+    pub holdout: f64,
     /// The synthetic source.
     pub synthetic: SyntheticConfig,
 }
@@ -139,13 +144,16 @@ impl Default for RecommenderConfig {
             reward_on: RewardOn::Accepted,
             store_dir: std::path::PathBuf::new(),
             refresh_seconds: 60,
+            holdout: 0.1,
             synthetic: SyntheticConfig::default(),
         }
     }
 }
 
-/// Seeded synthetic sessions with n-gram structure: items form `clusters`, and a session
-/// mostly stays in its cluster, moving to a "next" item of the last one.
+/// Seeded synthetic sessions with n-gram structure (`jsae_envs::recsys::synthetic`): Zipf
+/// popularity, three likely successors per item, a pull from the item before last. The
+/// defaults give the paper's scale: 835 items, all in the catalogue, so (835 + 1)^2, about
+/// 700k, states (README: Recommender).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct SyntheticConfig {
@@ -162,8 +170,8 @@ pub struct SyntheticConfig {
 impl Default for SyntheticConfig {
     fn default() -> Self {
         Self {
-            items: 1000,
-            sessions: 5000,
+            items: 835,
+            sessions: 20_000,
             mean_len: 8.0,
             seed: 7,
         }
@@ -293,6 +301,12 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     }
     if r.episode_len == 0 || r.refresh_seconds == 0 {
         return Err("recommender.episode_len and refresh_seconds must be positive".into());
+    }
+    if !(0.0..0.9).contains(&r.holdout) {
+        return Err(format!(
+            "recommender.holdout must be in [0, 0.9), got {}",
+            r.holdout
+        ));
     }
     if r.source == SessionSource::Rees46 && r.path.as_os_str().is_empty() {
         return Err(

@@ -1,0 +1,175 @@
+//! Offline evaluation the way recommender systems are judged: on the held-out sessions of the
+//! data (`environment.recommender.holdout`, split before the catalogue and the n-gram model
+//! are built, so the simulator never saw them), every purchase after a session's first is a
+//! query: the state is the last `history` purchases before it (items outside the catalogue
+//! dropped, as `Recommend` does), and a policy's `k` best items either hold the item bought
+//! or not.
+//!
+//! - hit rate@k: the share of queries whose item is among the `k`;
+//! - NDCG@k: the mean of `1 / log2(rank + 1)` (rank 1 the best) where it is, else 0; with one
+//!   relevant item the ideal DCG is 1;
+//! - coverage@k: the share of the catalogue recommended to anyone (how much the policy's
+//!   answer depends on the state).
+//!
+//! Purchases of items outside the catalogue are not queries (no policy can recommend them);
+//! they are counted. Uniformly random recommendations are scored by their expectation.
+
+use jsae_envs::recsys::{NgramModel, Session};
+use serde::Serialize;
+
+use crate::scoring::Recommender;
+
+/// Hit rate and NDCG of one policy.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RankingMetrics {
+    /// `learned`, `most-likely`, `popular` or `random`.
+    pub policy: String,
+    /// Share of queries whose purchased item was among the `k` recommended.
+    pub hit_rate: f64,
+    /// Mean NDCG@k.
+    pub ndcg: f64,
+    /// Catalogue coverage@k: the share of catalogue items in at least one query's `k` (1 for
+    /// random recommendations over enough queries; a policy that ignores the state: k/n).
+    pub coverage: f64,
+}
+
+/// The queries of held-out sessions against one model.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Queries {
+    /// Held-out sessions.
+    pub sessions: usize,
+    /// Queries (purchases after the first of a session, of catalogue items).
+    pub queries: usize,
+    /// Purchases after the first whose item is outside the catalogue (not queries).
+    pub outside_catalogue: usize,
+    /// `(state, purchased slot)` of every query.
+    #[serde(skip)]
+    pub pairs: Vec<(Vec<u32>, u32)>,
+}
+
+/// The queries of `sessions` under `model`, states made as `rec` makes them.
+pub fn queries(rec: &Recommender, model: &NgramModel, sessions: &[Session]) -> Queries {
+    let catalogue = model.catalogue();
+    let mut out = Queries {
+        sessions: sessions.len(),
+        queries: 0,
+        outside_catalogue: 0,
+        pairs: Vec::new(),
+    };
+    for s in sessions {
+        let mut known = Vec::new();
+        for (t, p) in s.purchases.iter().enumerate() {
+            let slot = catalogue.slot(&p.item_id);
+            if t > 0 {
+                match slot {
+                    Some(target) => out.pairs.push((rec.state_after(model, &known), target)),
+                    None => out.outside_catalogue += 1,
+                }
+            }
+            known.extend(slot);
+        }
+    }
+    out.queries = out.pairs.len();
+    out
+}
+
+/// Hit rate@k and NDCG@k of the policy `rec` serves over `queries`.
+pub fn score(
+    rec: &Recommender,
+    model: &NgramModel,
+    queries: &Queries,
+    k: usize,
+    name: &str,
+) -> Result<RankingMetrics, jsae_proto::RpcError> {
+    let (mut hits, mut gain) = (0usize, 0.0);
+    let mut shown = vec![false; model.catalogue().len()];
+    for (state, target) in &queries.pairs {
+        let ranking = rec.rank(model, state, k)?;
+        for (a, _) in &ranking.items {
+            if let Some(s) = shown.get_mut(*a as usize) {
+                *s = true;
+            }
+        }
+        if let Some(i) = ranking.items.iter().position(|(a, _)| a == target) {
+            hits += 1;
+            gain += 1.0 / ((i + 2) as f64).log2();
+        }
+    }
+    let n = queries.queries.max(1) as f64;
+    Ok(RankingMetrics {
+        policy: name.to_owned(),
+        hit_rate: hits as f64 / n,
+        ndcg: gain / n,
+        coverage: shown.iter().filter(|&&s| s).count() as f64 / shown.len().max(1) as f64,
+    })
+}
+
+/// The expected hit rate@k and NDCG@k of `k` distinct items drawn uniformly from `items`.
+pub fn random_expectation(items: usize, k: usize) -> RankingMetrics {
+    let k = k.min(items);
+    let per_rank = 1.0 / items.max(1) as f64;
+    RankingMetrics {
+        policy: "random".into(),
+        hit_rate: k as f64 * per_rank,
+        ndcg: (0..k).map(|i| per_rank / ((i + 2) as f64).log2()).sum(),
+        coverage: 1.0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::baseline::PolicyChoice;
+    use jsae_envs::recsys::held_out_sessions;
+    use jsae_proto::settings::{Algo, EnvName, SessionSource, TrainConfig};
+
+    #[test]
+    fn reading_the_model_ranks_held_out_purchases_better_than_popularity_and_chance() {
+        let mut config = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
+        let r = &mut config.environment.recommender;
+        r.source = SessionSource::Synthetic;
+        r.top_n = 60;
+        r.holdout = 0.2;
+        r.synthetic.items = 50;
+        r.synthetic.sessions = 1000;
+        let held = held_out_sessions(&config.environment.recommender).expect("sessions");
+        let rec = |choice| Recommender::new(&config, choice, config.device).expect("builds");
+        let (likely, popular) = (rec(PolicyChoice::MostLikely), rec(PolicyChoice::Popular));
+        let model = likely.model();
+        let q = queries(&likely, &model, &held);
+        assert!(q.queries > 1000, "{q:?}");
+        assert_eq!(q.outside_catalogue, 0, "every item is in the catalogue");
+        let a = score(&likely, &model, &q, 10, "most-likely").expect("ranks");
+        let b = score(&popular, &model, &q, 10, "popular").expect("ranks");
+        let c = random_expectation(model.catalogue().len(), 10);
+        assert!(
+            a.hit_rate > b.hit_rate && b.hit_rate > c.hit_rate,
+            "{a:?} {b:?} {c:?}"
+        );
+        for m in [&a, &b, &c] {
+            assert!(
+                m.ndcg > 0.0 && m.ndcg < m.hit_rate && m.hit_rate <= 1.0,
+                "{m:?}"
+            );
+        }
+        let items = model.catalogue().len() as f64;
+        assert!(
+            (b.coverage - 10.0 / items).abs() < 1e-12,
+            "popular ignores the state"
+        );
+        assert!(a.coverage > b.coverage, "{a:?}");
+        // the learned policy has no weights yet: UNAVAILABLE, not a made-up ranking
+        let learned = rec(PolicyChoice::Learned);
+        assert!(score(&learned, &model, &q, 10, "learned").is_err());
+    }
+
+    #[test]
+    fn random_recommendations_hit_k_in_n() {
+        let r = random_expectation(100, 10);
+        assert!((r.hit_rate - 0.1).abs() < 1e-12);
+        // every rank equally likely: the mean of the discounts over the first k ranks, times k/n
+        let mean: f64 = (0..10).map(|i| 1.0 / ((i + 2) as f64).log2()).sum::<f64>() / 10.0;
+        assert!((r.ndcg - 0.1 * mean).abs() < 1e-12);
+        assert_eq!(random_expectation(5, 10).hit_rate, 1.0);
+    }
+}
