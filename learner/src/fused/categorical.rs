@@ -23,7 +23,8 @@ pub(super) struct Bias<'a> {
     pub(super) grad: &'a mut [f32],
 }
 
-/// The surrogate's sum and the entropy's sum over the minibatch's samples, from the output
+/// The surrogate's, the entropy's and the next-purchase cross-entropy's sums over the
+/// minibatch's samples, from the output
 /// layer's products `out` (`[b, n]` row-major, the bias added here in place: the logits);
 /// writes the loss's gradient at the logits into `d_out` (each sample's terms divided by
 /// `bf`, the whole minibatch's size), its sum over rows into `bias.grad`, and each sample's
@@ -36,7 +37,7 @@ pub(super) fn rows(
     cfg: LossConfig,
     bf: f32,
     log_ratio: &mut Vec<f32>,
-) -> (f32, f32) {
+) -> (f32, f32, f32) {
     let n = bias.value.len();
     let b = out.len() / n.max(1);
     log_ratio.resize(b, 0.0);
@@ -68,7 +69,7 @@ pub(super) fn rows(
         .collect();
     use rayon::prelude::*;
     // one sum per part, added in order: the same bits whichever thread took which part
-    let sums: Vec<((f32, f32), Vec<f32>)> = pieces
+    let sums: Vec<((f32, f32, f32), Vec<f32>)> = pieces
         .par_iter_mut()
         .map(|(i, ((out, d_out), log_ratio))| {
             let mut d_bias = vec![0.0; n];
@@ -83,9 +84,9 @@ pub(super) fn rows(
             (sums, d_bias)
         })
         .collect();
-    let mut totals = (0.0, 0.0);
+    let mut totals = (0.0, 0.0, 0.0);
     for (s, d_bias) in &sums {
-        totals = (totals.0 + s.0, totals.1 + s.1);
+        totals = (totals.0 + s.0, totals.1 + s.1, totals.2 + s.2);
         for (g, &d) in bias.grad.iter_mut().zip(d_bias) {
             *g += d;
         }
@@ -105,12 +106,12 @@ struct Part<'a, 'b, 'c> {
 }
 
 impl pulp::WithSimd for Part<'_, '_, '_> {
-    type Output = (f32, f32);
+    type Output = (f32, f32, f32);
 
     /// Inlined whole into pulp's function for the instruction set, so its loops are
     /// vectorised for it.
     #[inline(always)]
-    fn with_simd<S: pulp::Simd>(self, _: S) -> (f32, f32) {
+    fn with_simd<S: pulp::Simd>(self, _: S) -> (f32, f32, f32) {
         self.ctx.run(
             self.first,
             self.out,
@@ -141,9 +142,15 @@ impl Rows<'_, '_> {
         d_out: &mut [f32],
         log_ratio: &mut [f32],
         d_bias: &mut [f32],
-    ) -> (f32, f32) {
-        let (mut pg, mut ent_sum) = (0.0, 0.0);
+    ) -> (f32, f32, f32) {
+        let (mut pg, mut ent_sum, mut nll_sum) = (0.0, 0.0, 0.0);
         let ent = self.cfg.ent_coef / self.bf;
+        let next = self.cfg.next_purchase_coef / self.bf;
+        let targets = if next > 0.0 {
+            self.mb.next_purchase
+        } else {
+            &[]
+        };
         let n = self.bias.len().max(1);
         for (k, ((o, d), lr_out)) in out
             .chunks_exact_mut(n)
@@ -175,10 +182,19 @@ impl Rows<'_, '_> {
                 *dk = -dpg * pk + ent * pk * (ok - log_z + h);
             }
             d[a] += dpg;
+            // the next purchase's cross-entropy: d/d o_k = coef (p_k - 1[k=t]) / b
+            if let Some(&t) = targets.get(i).filter(|&&t| (t as usize) < n) {
+                let t = t as usize;
+                nll_sum += log_z - o[t];
+                for (dk, &ok) in d.iter_mut().zip(o) {
+                    *dk += next * (ok - log_z).exp();
+                }
+                d[t] -= next;
+            }
             for (g, &dk) in d_bias.iter_mut().zip(d.iter()) {
                 *g += dk;
             }
         }
-        (pg, ent_sum)
+        (pg, ent_sum, nll_sum)
     }
 }

@@ -40,6 +40,8 @@ struct PartSums {
     pg: f32,
     entropy: f32,
     value: f32,
+    /// The next-purchase cross-entropy's sum (categorical, when on).
+    next_nll: f32,
 }
 
 impl HostPolicy {
@@ -110,6 +112,7 @@ impl HostPolicy {
             pg: acc.pg + s.pg,
             entropy: acc.entropy + s.entropy,
             value: acc.value + s.value,
+            next_nll: acc.next_nll + s.next_nll,
         });
         let entropy = match self.head {
             PolicyHead::Gaussian { dim } => {
@@ -132,7 +135,9 @@ impl HostPolicy {
         };
         let (pg, value) = (total.pg / bf, total.value * 0.5 / bf);
         LossParts {
-            total: pg - cfg.ent_coef * entropy + cfg.vf_coef * value,
+            total: pg - cfg.ent_coef * entropy
+                + cfg.vf_coef * value
+                + cfg.next_purchase_coef * total.next_nll / bf,
             pg,
             value,
             entropy,
@@ -155,7 +160,7 @@ impl HostPolicy {
             grads,
             log_ratio,
         } = part;
-        let ((pg, entropy), value) = rayon::join(
+        let ((pg, entropy, next_nll), value) = rayon::join(
             || {
                 let out = ActorOut {
                     work: actor,
@@ -168,7 +173,12 @@ impl HostPolicy {
             },
             || self.critic_pass(mb, cfg, bf, input_weights, critic, &mut grads.critic),
         );
-        PartSums { pg, entropy, value }
+        PartSums {
+            pg,
+            entropy,
+            value,
+            next_nll,
+        }
     }
 
     /// The sums of the surrogate and (categorical) of the entropy over `mb`'s samples, and
@@ -180,7 +190,7 @@ impl HostPolicy {
         cfg: LossConfig,
         bf: f32,
         work: ActorOut<'_>,
-    ) -> (f32, f32) {
+    ) -> (f32, f32, f32) {
         let p = &self.params;
         // the softmax rows add the bias and sum its gradient as they go
         let output_bias = match self.head {
@@ -192,6 +202,7 @@ impl HostPolicy {
         let mut pg = 0.0;
         let mut d_ls = vec![0.0f32; p.log_std.len()];
         let mut entropy = 0.0;
+        let mut next_nll = 0.0;
         let (out, d_out) = work.work.output_mut_and_grad();
         let width = out.ncols().max(1);
         let out = out.as_slice_mut().unwrap_or(&mut []);
@@ -248,14 +259,14 @@ impl HostPolicy {
                     value: p.actor.b[last].as_slice().unwrap_or(&[]),
                     grad: work.grads.b[last].as_slice_mut().unwrap_or(&mut []),
                 };
-                (pg, entropy) =
+                (pg, entropy, next_nll) =
                     super::categorical::rows(out, d_out, bias, mb, cfg, bf, work.log_ratio);
             }
         }
         p.actor
             .backward_with(mb.x, work.work, work.grads, output_bias, work.input_weights);
         work.log_std.copy_from_slice(&d_ls);
-        (pg, entropy)
+        (pg, entropy, next_nll)
     }
 
     /// The sum over `mb`'s samples of `(v - R)^2` (or of the larger of it and the clipped

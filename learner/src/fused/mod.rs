@@ -9,7 +9,8 @@
 //!
 //! The loss is the one `ppo::update`'s burn path builds: the clipped surrogate, minus
 //! `ent_coef` times the mean entropy, plus `vf_coef` times the (optionally clipped) value
-//! loss; where burn's `max_pair` has a tie the gradient goes to the unclipped term, as
+//! loss, plus `next_purchase_coef` times the mean cross-entropy of the categorical policy
+//! against the item bought next (where one was); where burn's `max_pair` has a tie the gradient goes to the unclipped term, as
 //! burn's does. `tests` checks both against burn's autodiff.
 
 mod categorical;
@@ -95,6 +96,8 @@ pub struct HostMinibatch<'a> {
     pub returns: &'a [f32],
     /// Values at collection time.
     pub old_values: &'a [f32],
+    /// The item bought after each sample (`u32::MAX`: none), or empty.
+    pub next_purchase: &'a [u32],
 }
 
 /// The loss's settings.
@@ -108,6 +111,8 @@ pub struct LossConfig {
     pub ent_coef: f32,
     /// Value-loss coefficient.
     pub vf_coef: f32,
+    /// Weight of the next-purchase cross-entropy (categorical head; 0: off).
+    pub next_purchase_coef: f32,
 }
 
 /// The loss's parts, as `ppo::update` reports them.

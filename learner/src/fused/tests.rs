@@ -27,6 +27,17 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
 }
 
 fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_std: f32) {
+    check_with(head, tanh_mean, clip_value_loss, init_log_std, 0.0);
+}
+
+/// `next_purchase_coef` > 0 (categorical): a next purchase for most samples, none for some.
+fn check_with(
+    head: PolicyHead,
+    tanh_mean: bool,
+    clip_value_loss: bool,
+    init_log_std: f32,
+    next_purchase_coef: f32,
+) {
     let device = DeviceKind::Flex.train_device();
     let mut config = PpoConfig {
         tanh_mean,
@@ -64,11 +75,24 @@ fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_s
     let adv: Vec<f32> = (0..b).map(|_| rng.random_range(-1.5..1.5)).collect();
     let returns: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
     let old_values: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let next_purchase: Vec<u32> = match head {
+        PolicyHead::Categorical { n } if next_purchase_coef > 0.0 => (0..b)
+            .map(|i| {
+                if i % 5 == 3 {
+                    u32::MAX
+                } else {
+                    rng.random_range(0..n as u32)
+                }
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
     let cfg = LossConfig {
         clip: 0.2,
         clip_value_loss,
         ent_coef: 0.05,
         vf_coef: 0.5,
+        next_purchase_coef,
     };
 
     // burn: the loss exactly as ppo::update builds it
@@ -85,7 +109,20 @@ fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_s
     } else {
         (eval.value - ret).square().mean().mul_scalar(0.5)
     };
-    let loss: Tensor<1> = pg - eval.entropy.mean().mul_scalar(0.05) + v_loss.mul_scalar(0.5);
+    let mut loss: Tensor<1> = pg - eval.entropy.mean().mul_scalar(0.05) + v_loss.mul_scalar(0.5);
+    if !next_purchase.is_empty() {
+        // -log pi(t | x) of the samples with a purchase, over all b samples
+        let with: Vec<usize> = (0..b).filter(|&i| next_purchase[i] != u32::MAX).collect();
+        let xs: Vec<f32> = with
+            .iter()
+            .flat_map(|&i| x[i * input..(i + 1) * input].to_vec())
+            .collect();
+        let targets = ActionBatch::Discrete(with.iter().map(|&i| next_purchase[i]).collect());
+        let logp = policy
+            .evaluate(jsae_nn::tensor2(xs, with.len(), input, &device), &targets)
+            .logp;
+        loss = loss + logp.sum().neg().mul_scalar(next_purchase_coef / b as f32);
+    }
     let burn_loss = jsae_nn::to_vec(loss.clone())[0];
     let grads = loss.backward();
 
@@ -109,7 +146,8 @@ fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_s
             old_logp: &old_logp[r.clone()],
             adv: &adv[r.clone()],
             returns: &returns[r.clone()],
-            old_values: &old_values[r],
+            old_values: &old_values[r.clone()],
+            next_purchase: of(&next_purchase, b, &r),
         }
     };
     let mut work = FusedWork::new(&host);
@@ -237,6 +275,13 @@ fn categorical_loss_and_gradients_equal_burn_autodiff() {
 }
 
 #[test]
+fn the_next_purchase_loss_and_its_gradients_equal_burn_autodiff() {
+    for n in [11, 1500] {
+        check_with(PolicyHead::Categorical { n }, false, true, -0.3, 0.7);
+    }
+}
+
+#[test]
 fn one_hot_inputs_split_into_parts_give_the_whole_dense_minibatchs_gradients() {
     let device = DeviceKind::Flex.train_device();
     let config = PpoConfig {
@@ -268,6 +313,7 @@ fn one_hot_inputs_split_into_parts_give_the_whole_dense_minibatchs_gradients() {
         clip_value_loss: true,
         ent_coef: 0.05,
         vf_coef: 0.5,
+        next_purchase_coef: 0.0,
     };
     let whole = HostMinibatch {
         x: HostInput::Dense(x.view()),
@@ -277,6 +323,7 @@ fn one_hot_inputs_split_into_parts_give_the_whole_dense_minibatchs_gradients() {
         adv: &adv,
         returns: &returns,
         old_values: &old_values,
+        next_purchase: &[],
     };
     let mut work = FusedWork::new(&host);
     let expected_loss = host

@@ -28,6 +28,43 @@ pub(super) struct Batch {
     pub(super) adv: Vec<f32>,
     pub(super) returns: Vec<f32>,
     pub(super) values: Vec<f32>,
+    /// The item bought after each step ([`next_purchases`]; [`NO_TARGET`] where there is
+    /// none), or empty when `ppo.next_purchase_coef` is 0.
+    pub(super) next_purchase: Vec<u32>,
+}
+
+/// A step with no next purchase (an episode that terminated there, or an input that holds no
+/// item).
+pub(crate) const NO_TARGET: u32 = u32::MAX;
+
+/// The item bought after each step of a fragment, for the self-supervised next-purchase loss:
+/// the newest factor of the next state (its last one-hot block of `n + 1` values: the `n`
+/// items, then "none"), read from the next step's input, the truncation's bootstrap input, or
+/// the fragment's tail input.
+fn next_purchases(f: &RolloutFragment, x_dim: usize, n: usize, out: &mut Vec<u32>) {
+    let item = |x: &[f32]| -> u32 {
+        let block = &x[x.len().saturating_sub(n + 1)..];
+        block
+            .iter()
+            .position(|&v| v > 0.5)
+            .filter(|&k| k < n)
+            .map_or(NO_TARGET, |k| k as u32)
+    };
+    let t_len = f.len();
+    let mut cut = 0;
+    for t in 0..t_len {
+        let next = if f.truncated[t] {
+            cut += 1;
+            Some(&f.truncated_next_x[(cut - 1) * x_dim..cut * x_dim])
+        } else if f.terminated[t] {
+            None
+        } else if t + 1 < t_len {
+            Some(&f.x[(t + 1) * x_dim..(t + 2) * x_dim])
+        } else {
+            Some(&f.last_next_x[..x_dim])
+        };
+        out.push(next.map_or(NO_TARGET, item));
+    }
 }
 
 pub(super) struct Minibatch {
@@ -37,6 +74,8 @@ pub(super) struct Minibatch {
     pub(super) adv: Tensor<1>,
     pub(super) returns: Tensor<1>,
     pub(super) old_values: Tensor<1>,
+    /// The next purchases ([`NO_TARGET`]: none), empty when the loss is off.
+    pub(super) next_purchase: Vec<u32>,
 }
 
 /// The batch's raw input rows, kept between updates: they are megabytes (2,048 one-hot rows
@@ -97,6 +136,15 @@ impl Batch {
             adv: Vec::new(),
             returns: Vec::new(),
             values: Vec::new(),
+            next_purchase: Vec::new(),
+        };
+        let purchase_items = match policy.head() {
+            crate::policy::PolicyHead::Categorical { n }
+                if config.next_purchase_coef > 0.0 && x_dim > n =>
+            {
+                Some(n)
+            }
+            _ => None,
         };
         let mut offset = 0;
         for mut f in fragments {
@@ -137,6 +185,9 @@ impl Batch {
                 })
                 .collect();
             let (adv, ret) = gae(&steps, config.gamma as f32, config.gae_lambda as f32);
+            if let Some(n) = purchase_items {
+                next_purchases(&f, x_dim, n, &mut out.next_purchase);
+            }
             out.x.extend_from_slice(&f.x);
             out.actions.extend_from(&f.actions);
             out.logp.extend_from_slice(&f.logp);
@@ -196,6 +247,11 @@ impl Batch {
             adv: nn::tensor1(adv, device),
             returns: nn::tensor1(pick(&self.returns), device),
             old_values: nn::tensor1(pick(&self.values), device),
+            next_purchase: if self.next_purchase.is_empty() {
+                Vec::new()
+            } else {
+                rows.iter().map(|&r| self.next_purchase[r]).collect()
+            },
         }
     }
 }
@@ -348,6 +404,7 @@ struct PartRows {
     adv: Vec<f32>,
     returns: Vec<f32>,
     old_values: Vec<f32>,
+    next_purchase: Vec<u32>,
 }
 
 impl PartRows {
@@ -393,6 +450,11 @@ impl PartRows {
         pick(&mut self.adv, &batch.adv);
         pick(&mut self.returns, &batch.returns);
         pick(&mut self.old_values, &batch.values);
+        self.next_purchase.clear();
+        if !batch.next_purchase.is_empty() {
+            self.next_purchase
+                .extend(rows.iter().map(|&r| batch.next_purchase[r]));
+        }
         if let Some(stats) = adv_stats {
             normalise_with(&mut self.adv, stats);
         }
@@ -412,6 +474,56 @@ impl PartRows {
             adv: &self.adv,
             returns: &self.returns,
             old_values: &self.old_values,
+            next_purchase: &self.next_purchase,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_next_purchase_is_the_next_states_newest_item() {
+        // 3 items: two one-hot blocks of 4 (items 0..3, then "none")
+        let (n, x_dim) = (3, 8);
+        let state = |before: usize, last: usize| {
+            let mut x = vec![0.0; x_dim];
+            x[before] = 1.0;
+            x[4 + last] = 1.0;
+            x
+        };
+        // steps: (none, 2) -> 1, (2, 1) -> truncated, next (1, 0); then a new episode at
+        // (none, 3 = "none" is not an item) ... the tail's next state (0, 1)
+        let x: Vec<f32> = [state(3, 2), state(2, 1), state(3, 0)].concat();
+        let f = RolloutFragment {
+            actor_id: 0,
+            env_index: 0,
+            policy_version: 1,
+            embedding_version: 0,
+            actor_env_steps: 3,
+            x_dim,
+            x,
+            actions: ActionBatch::Discrete(vec![0, 0, 0]),
+            logp: vec![0.0; 3],
+            rewards: vec![0.0; 3],
+            terminated: vec![false; 3],
+            truncated: vec![false, true, false],
+            truncated_next_x: state(1, 0),
+            last_next_x: state(0, 3),
+            episodes: Vec::new(),
+        };
+        let mut out = Vec::new();
+        next_purchases(&f, x_dim, n, &mut out);
+        assert_eq!(out, [1, 0, NO_TARGET]);
+        let ended = RolloutFragment {
+            terminated: vec![false, false, true],
+            truncated: vec![false; 3],
+            truncated_next_x: Vec::new(),
+            ..f
+        };
+        out.clear();
+        next_purchases(&ended, x_dim, n, &mut out);
+        assert_eq!(out, [1, 0, NO_TARGET], "no next state after a termination");
     }
 }

@@ -65,6 +65,7 @@ fn epochs(
         clip_value_loss: config.clip_value_loss,
         ent_coef: config.ent_coef as f32,
         vf_coef: config.vf_coef as f32,
+        next_purchase_coef: config.next_purchase_coef as f32,
     };
     let work = state.work.get_or_insert_with(|| FusedWork::new(host));
     let mb = config.minibatch_size.min(batch.len()).max(1);

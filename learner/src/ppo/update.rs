@@ -13,7 +13,8 @@ use rand::seq::SliceRandom;
 
 use super::batch::Batch;
 use super::{Learner, UpdateMetrics};
-use crate::policy::PolicyHead;
+use crate::policy::{Policy, PolicyHead};
+use jsae_proto::ActionBatch;
 use jsae_proto::settings::UpdatePath;
 
 impl Learner {
@@ -50,6 +51,12 @@ impl Learner {
             let mut stats = EpochStats::default();
             for rows in order.chunks(mb) {
                 let m = batch.minibatch(rows, self.config.norm_adv, &device);
+                let next_nll = next_purchase_nll(
+                    &self.policy,
+                    &m.x,
+                    &m.next_purchase,
+                    self.config.next_purchase_coef,
+                );
                 let eval = self.policy.evaluate(m.x, &m.actions);
                 let log_ratio = eval.logp - m.old_logp;
                 let pg_loss = clipped_surrogate_loss(log_ratio.clone(), m.adv, clip);
@@ -63,9 +70,12 @@ impl Learner {
                     (eval.value - m.returns).square().mean().mul_scalar(0.5)
                 };
                 let entropy = eval.entropy.mean();
-                let loss = pg_loss.clone()
+                let mut loss = pg_loss.clone()
                     - entropy.clone().mul_scalar(self.config.ent_coef as f32)
                     + v_loss.clone().mul_scalar(self.config.vf_coef as f32);
+                if let Some(nll) = next_nll {
+                    loss = loss + nll.mul_scalar(self.config.next_purchase_coef as f32);
+                }
                 let mut grads = GradientsParams::from_grads(loss.backward(), self.policy.net());
                 let norm = nn::clip_global_grad_norm(
                     self.policy.net(),
@@ -97,6 +107,37 @@ impl Learner {
         }
         last.metrics(epochs, grad_sum / f64::from(grad_count.max(1)))
     }
+}
+
+/// The next-purchase cross-entropy of a categorical policy: `-log pi(t | x)` summed over the
+/// samples with a next purchase `t` and divided by all `b` samples (as the fused path's
+/// sums); None when the loss is off.
+pub(crate) fn next_purchase_nll(
+    policy: &Policy,
+    x: &Tensor<2>,
+    targets: &[u32],
+    coef: f64,
+) -> Option<Tensor<1>> {
+    let PolicyHead::Categorical { n } = policy.head() else {
+        return None;
+    };
+    if coef <= 0.0 || targets.is_empty() {
+        return None;
+    }
+    let valid = |t: u32| (t as usize) < n;
+    let actions = ActionBatch::Discrete(
+        targets
+            .iter()
+            .map(|&t| if valid(t) { t } else { 0 })
+            .collect(),
+    );
+    let mask: Vec<f32> = targets
+        .iter()
+        .map(|&t| f32::from(u8::from(valid(t))))
+        .collect();
+    let logp = policy.evaluate(x.clone(), &actions).logp;
+    let mask = nn::tensor1(mask, &policy.device().clone());
+    Some((logp * mask).sum().neg().div_scalar(targets.len() as f32))
 }
 
 /// PPO's clipped surrogate: `mean(max(-A r, -A clip(r, 1-c, 1+c)))` with

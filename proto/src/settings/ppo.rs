@@ -35,6 +35,11 @@ pub struct PpoConfig {
     /// stops there; only the policy gradient moves the std further). Unset: E's rule
     /// ([`PpoConfig::entropy_log_std_cap`]).
     pub entropy_log_std_max: Option<f32>,
+    /// Weight of a self-supervised loss for the recommender's categorical policy (its
+    /// actions are the items of the state's factors): the cross-entropy of the policy's
+    /// softmax against the item bought next, read from the next state, added to the PPO loss
+    /// (as in self-supervised RL for recommendation, Xin et al. 2020). 0: off.
+    pub next_purchase_coef: f64,
     /// Global gradient-norm limit.
     pub max_grad_norm: f32,
     /// Normalise advantages per minibatch.
@@ -87,6 +92,7 @@ impl Default for PpoConfig {
             vf_coef: 0.5,
             ent_coef: 0.0,
             entropy_log_std_max: None,
+            next_purchase_coef: 0.0,
             max_grad_norm: 0.5,
             norm_adv: true,
             target_kl: None,
@@ -141,6 +147,9 @@ impl PpoConfig {
         }
         if self.entropy_log_std_max.is_some_and(|v| !v.is_finite()) {
             return Err("ppo.entropy_log_std_max must be a finite number".into());
+        }
+        if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
+            return Err("ppo.next_purchase_coef must be a finite number >= 0".into());
         }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());

@@ -457,6 +457,15 @@ impl TrainConfig {
             return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
         }
         self.ppo.validate().map_err(ConfigError::Invalid)?;
+        if self.ppo.next_purchase_coef > 0.0
+            && (self.env != EnvName::Recommender || self.algo != Algo::Ppo)
+        {
+            return bad(
+                "ppo.next_purchase_coef is for --env recommender --algo ppo (a categorical \
+                 policy over the items of the state)"
+                    .into(),
+            );
+        }
         if self.algo.representation().needs_embedder() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;
             let budget = self.pretrain_budget();
