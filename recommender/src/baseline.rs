@@ -75,13 +75,7 @@ impl Reference {
         let mut all: Vec<(u32, f64)> = (0..model.catalogue().len() as u32)
             .map(|a| (a, self.score(model, state, a)))
             .collect();
-        let order = |a: &(u32, f64), b: &(u32, f64)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
-        let k = k.min(all.len());
-        if k > 0 && k < all.len() {
-            all.select_nth_unstable_by(k - 1, order);
-        }
-        all.truncate(k);
-        all.sort_by(order);
+        crate::scoring::best_k(&mut all, k, f64::total_cmp);
         all
     }
 

@@ -306,13 +306,18 @@ fn most_likely(logits: &[f32], items: usize, k: usize) -> Vec<(u32, f32)> {
         .enumerate()
         .map(|(a, &l)| (a as u32, (l - max).exp() / z))
         .collect();
-    best_k(&mut all, k);
+    best_k(&mut all, k, f32::total_cmp);
     all
 }
 
-/// Keeps the `k` highest scores, highest first (ties: lower index first).
-fn best_k(all: &mut Vec<(u32, f32)>, k: usize) {
-    let order = |a: &(u32, f32), b: &(u32, f32)| b.1.total_cmp(&a.1).then(a.0.cmp(&b.0));
+/// Keeps the `k` highest scores under `cmp`, highest first (ties: lower index first); the
+/// learned policy's and the reference policies' rankings.
+pub(crate) fn best_k<S>(
+    all: &mut Vec<(u32, S)>,
+    k: usize,
+    cmp: impl Fn(&S, &S) -> std::cmp::Ordering,
+) {
+    let order = |a: &(u32, S), b: &(u32, S)| cmp(&b.1, &a.1).then(a.0.cmp(&b.0));
     let k = k.min(all.len());
     if k == 0 {
         all.clear();
@@ -330,7 +335,7 @@ mod tests {
     #[test]
     fn best_k_orders_by_score_then_index() {
         let mut v = vec![(0, 0.1), (1, 0.5), (2, 0.5), (3, 0.9), (4, -1.0)];
-        best_k(&mut v, 3);
+        best_k(&mut v, 3, f32::total_cmp);
         assert_eq!(v, vec![(3, 0.9), (1, 0.5), (2, 0.5)]);
     }
 
