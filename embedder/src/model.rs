@@ -125,6 +125,7 @@ impl EmbeddingModel {
                     hidden,
                     output: *dim,
                     output_gain: 1.0,
+                    skip: false,
                 };
                 (None, g, Some(decoder.init(rng, device)))
             }

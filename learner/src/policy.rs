@@ -103,6 +103,7 @@ impl Policy {
             hidden: config.hidden.clone(),
             output: head.outputs(),
             output_gain: 0.01,
+            skip: config.wide_actor,
         }
         .init(rng, device);
         let critic = MlpConfig {
@@ -110,6 +111,7 @@ impl Policy {
             hidden: config.hidden.clone(),
             output: 1,
             output_gain: 1.0,
+            skip: false,
         }
         .init(rng, device);
         let dim = match head {

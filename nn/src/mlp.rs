@@ -19,6 +19,11 @@ pub struct MlpConfig {
     pub output: usize,
     /// Gain of the output layer's orthogonal initialisation.
     pub output_gain: f32,
+    /// A linear path from the input straight to the output, added to the last layer's
+    /// (a "wide and deep" network: on one-hot inputs a table of one output row per input
+    /// entry, which a narrow hidden layer cannot hold). Starts at zero.
+    #[serde(default)]
+    pub skip: bool,
 }
 
 impl MlpConfig {
@@ -38,8 +43,13 @@ impl MlpConfig {
             rng,
             device,
         ));
+        let skip = self.skip.then(|| {
+            let zeros = vec![0.0; self.input * self.output];
+            crate::linear_from_host(zeros, None, self.input, self.output, device)
+        });
         Mlp {
             layers,
+            skip,
             activation: Tanh::new(),
         }
     }
@@ -49,6 +59,8 @@ impl MlpConfig {
 #[derive(Module, Debug)]
 pub struct Mlp {
     layers: Vec<Linear>,
+    /// The input-to-output path ([`MlpConfig::skip`]), without a bias.
+    skip: Option<Linear>,
     activation: Tanh,
 }
 
@@ -56,6 +68,11 @@ impl Mlp {
     /// The linear layers, input first (burn's weights are `[in, out]`).
     pub fn layers(&self) -> &[Linear] {
         &self.layers
+    }
+
+    /// The input-to-output path, if the MLP has one.
+    pub fn skip(&self) -> Option<&Linear> {
+        self.skip.as_ref()
     }
 
     /// Replaces the weights with `host`'s (an MLP of this one's shapes, read in burn's layout
@@ -75,10 +92,19 @@ impl Mlp {
                     .map(|p| p.map(|old| replaced(old, host.b[i].as_slice().unwrap_or(&[])))),
             })
             .collect();
+        if let (Some(layer), Some(w)) = (self.skip.take(), host.skip.as_ref()) {
+            let values: Vec<f32> = w.iter().copied().collect();
+            self.skip = Some(Linear {
+                weight: layer.weight.map(|old| replaced(old, &values)),
+                bias: None,
+            });
+        }
     }
 
     /// `[batch, input] -> [batch, output]`.
-    pub fn forward(&self, mut x: Tensor<2>) -> Tensor<2> {
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        let wide = self.skip.as_ref().map(|skip| skip.forward(x.clone()));
+        let mut x = x;
         let last = self.layers.len().saturating_sub(1);
         for (i, layer) in self.layers.iter().enumerate() {
             x = layer.forward(x);
@@ -86,7 +112,10 @@ impl Mlp {
                 x = self.activation.forward(x);
             }
         }
-        x
+        match wide {
+            Some(wide) => x + wide,
+            None => x,
+        }
     }
 }
 

@@ -98,8 +98,10 @@ pub struct BaselineReturns {
     pub return_std: f64,
 }
 
-/// Every policy runs on the same environment (one model load), from the same seeds.
-fn returns(
+/// The returns of the policy `choose` over `episodes` episodes of `env` seeded with `seed`
+/// (what every reference policy is scored with: the same episodes and seeds on one
+/// environment; `choose` gets its own random stream).
+pub fn returns(
     env: &mut RecommenderEnv,
     episodes: usize,
     seed: u64,

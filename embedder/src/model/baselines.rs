@@ -58,6 +58,7 @@ pub(super) fn inverse_heads(
         hidden: vec![config.decoder_hidden],
         output: config.action_dim,
         output_gain: 1.0,
+        skip: false,
     };
     net.inverse = Some(inverse.init(rng, device));
     if matches!(actions, ActionSpace::Discrete { .. }) {

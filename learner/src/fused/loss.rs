@@ -87,14 +87,18 @@ impl HostPolicy {
         }
         let (first, rest) = used.split_at_mut(1);
         let grads = &mut first[0].grads;
-        // the first-layer weights' places among the parameter slices (weights and bias of
-        // each layer in turn, the actor's layers first)
-        let first_layers = [0, 2 * self.params.actor.w.len()];
+        // the places among the parameter slices (the actor's, then the critic's) of the
+        // weights that read the input: each MLP's first layer, the actor's skip path
+        let actor_slices = self.params.actor.slices().len();
+        let input_layers = [Some(0), Some(actor_slices), self.params.actor.skip_slice()];
         for (mb, other) in parts.iter().skip(1).zip(rest.iter()) {
             let sparse = match mb.x {
                 HostInput::Sparse(x) => {
                     x.outer_add(other.actor.input_layer_grad(), &mut grads.actor.w[0]);
                     x.outer_add(other.critic.input_layer_grad(), &mut grads.critic.w[0]);
+                    if let Some(skip) = grads.actor.skip.as_mut() {
+                        x.outer_add(other.actor.output_grad(), skip);
+                    }
                     true
                 }
                 HostInput::Dense(_) => false,
@@ -102,7 +106,7 @@ impl HostPolicy {
             let mut part = other.grads.slices();
             if sparse {
                 // added above, row by row; an empty slice adds nothing
-                for i in first_layers {
+                for i in input_layers.into_iter().flatten() {
                     part[i] = &[];
                 }
             }

@@ -27,28 +27,38 @@ fn check(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool) {
 }
 
 fn check_at(head: PolicyHead, tanh_mean: bool, clip_value_loss: bool, init_log_std: f32) {
-    check_with(head, tanh_mean, clip_value_loss, init_log_std, 0.0);
+    check_with(head, tanh_mean, clip_value_loss, init_log_std, 0.0, false);
 }
 
-/// `next_purchase_coef` > 0 (categorical): a next purchase for most samples, none for some.
+/// `next_purchase_coef` > 0 (categorical): a next purchase for most samples, none for some;
+/// `wide_actor`: the actor's input-to-output path, set to non-zero weights.
 fn check_with(
     head: PolicyHead,
     tanh_mean: bool,
     clip_value_loss: bool,
     init_log_std: f32,
     next_purchase_coef: f32,
+    wide_actor: bool,
 ) {
     let device = DeviceKind::Flex.train_device();
     let mut config = PpoConfig {
         tanh_mean,
         clip_value_loss,
         init_log_std,
+        wide_actor,
         ..PpoConfig::default()
     };
     config.normalize_obs = false;
     let input = 7;
     let mut rng = ChaCha8Rng::seed_from_u64(11);
-    let policy = Policy::new(&config, input, head, &mut rng, &device);
+    let mut policy = Policy::new(&config, input, head, &mut rng, &device);
+    if wide_actor {
+        let mut host = HostPolicy::from_policy(&policy);
+        if let Some(skip) = host.params.actor.skip.as_mut() {
+            skip.mapv_inplace(|_| rng.random_range(-0.3..0.3));
+        }
+        policy.load_host(&host.params);
+    }
     let b = 48;
     let x: Vec<f32> = (0..b * input)
         .map(|_| rng.random_range(-2.0..2.0))
@@ -196,6 +206,15 @@ fn compare(
             );
         }
     }
+    if let Some(skip) = actor.skip() {
+        let gw = skip.weight.val().grad(grads).map(jsae_nn::to_vec);
+        let host_skip = g.actor.skip.as_ref().expect("a skip gradient");
+        close(
+            &host_skip.iter().copied().collect::<Vec<_>>(),
+            &gw.expect("burn's skip gradient"),
+            &format!("{what}: actor skip"),
+        );
+    }
     if matches!(policy.head(), PolicyHead::Gaussian { .. }) {
         let gls = log_std
             .val()
@@ -277,15 +296,37 @@ fn categorical_loss_and_gradients_equal_burn_autodiff() {
 #[test]
 fn the_next_purchase_loss_and_its_gradients_equal_burn_autodiff() {
     for n in [11, 1500] {
-        check_with(PolicyHead::Categorical { n }, false, true, -0.3, 0.7);
+        check_with(PolicyHead::Categorical { n }, false, true, -0.3, 0.7, false);
     }
 }
 
 #[test]
+fn a_wide_actors_loss_and_gradients_equal_burn_autodiff() {
+    for n in [11, 1500] {
+        check_with(PolicyHead::Categorical { n }, false, true, -0.3, 0.7, true);
+    }
+    check_with(
+        PolicyHead::Gaussian { dim: 3 },
+        true,
+        false,
+        -0.3,
+        0.0,
+        true,
+    );
+}
+
+#[test]
 fn one_hot_inputs_split_into_parts_give_the_whole_dense_minibatchs_gradients() {
+    for wide_actor in [false, true] {
+        one_hot_parts(wide_actor);
+    }
+}
+
+fn one_hot_parts(wide_actor: bool) {
     let device = DeviceKind::Flex.train_device();
     let config = PpoConfig {
         normalize_obs: false,
+        wide_actor,
         ..PpoConfig::default()
     };
     let (input, b, n) = (40, 30, 9);

@@ -25,13 +25,16 @@ pub use sparse::{HostInput, SparseRows};
 /// layer's are `[out, in]`, transposed, the layout in which the forward product, the weight
 /// gradient and the input gradient all run at the kernel's full speed (with `[in, out]` the
 /// input gradient reads the weights across rows and runs at half speed on wide layers).
-/// [`Self::weight`] reads any layer in burn's layout. `b[i]` is `[out]`.
+/// [`Self::weight`] reads any layer in burn's layout. `b[i]` is `[out]`. The input-to-output
+/// path ([`crate::MlpConfig::skip`]), where there is one, is `[in, out]` like the first layer.
 #[derive(Debug, Clone, PartialEq)]
 pub struct HostMlp {
     /// Weights per layer: `[in, out]` for the first, `[out, in]` for the others.
     pub w: Vec<Array2<f32>>,
     /// Biases per layer, `[out]`.
     pub b: Vec<Array1<f32>>,
+    /// The input-to-output weights, `[in, out]`, if any.
+    pub skip: Option<Array2<f32>>,
 }
 
 /// One MLP pass's buffers, kept between minibatches.
@@ -64,6 +67,13 @@ impl MlpWork {
         (&self.acts[last], &mut self.delta[last])
     }
 
+    /// The loss's gradient at the output (what the caller wrote), `[batch, output]`: with
+    /// [`InputWeights::ByCaller`] the caller multiplies the inputs by it for the
+    /// input-to-output path's weight gradient.
+    pub fn output_grad(&self) -> &Array2<f32> {
+        &self.delta[self.delta.len() - 1]
+    }
+
     /// The loss's gradient at the first layer's output (before its tanh), after
     /// [`HostMlp::backward_with`]: with [`InputWeights::ByCaller`] the caller multiplies the
     /// inputs by it for the first layer's weight gradient.
@@ -79,7 +89,8 @@ impl MlpWork {
     }
 }
 
-/// Who computes the first layer's weight gradient. A minibatch split between threads has
+/// Who computes the weight gradients of the layers that read the input (the first, and the
+/// input-to-output path where there is one). A minibatch split between threads has
 /// one gradient per part; for one-hot inputs, whose first layer is thousands of rows of which
 /// a minibatch touches a few hundred, each part's full-size gradient (zeroed, then added to the
 /// others') costs more than adding each part's few rows into one gradient afterwards.
@@ -111,11 +122,8 @@ impl HostMlp {
         let mut w = Vec::new();
         let mut b = Vec::new();
         for layer in mlp.layers() {
-            let weight = layer.weight.val();
-            let [rows, cols] = weight.dims();
-            let data = crate::to_vec(weight);
-            let burn_layout = Array2::from_shape_vec((rows, cols), data)
-                .unwrap_or_else(|_| Array2::zeros((rows, cols)));
+            let burn_layout = burn_weight(layer);
+            let cols = burn_layout.ncols();
             w.push(if w.is_empty() {
                 burn_layout
             } else {
@@ -127,7 +135,8 @@ impl HostMlp {
                 .map_or_else(|| vec![0.0; cols], |p| crate::to_vec(p.val()));
             b.push(Array1::from(bias));
         }
-        Self { w, b }
+        let skip = mlp.skip().map(burn_weight);
+        Self { w, b, skip }
     }
 
     /// Layer `i`'s weights (or weight gradients) in burn's layout, `[in, out]`.
@@ -144,25 +153,38 @@ impl HostMlp {
         Self {
             w: self.w.iter().map(|w| Array2::zeros(w.raw_dim())).collect(),
             b: self.b.iter().map(|b| Array1::zeros(b.raw_dim())).collect(),
+            skip: self.skip.as_ref().map(|s| Array2::zeros(s.raw_dim())),
         }
     }
 
-    /// Every parameter as a flat slice, weights and bias of each layer in turn.
+    /// Every parameter as a flat slice, weights and bias of each layer in turn, then the
+    /// input-to-output weights (at [`Self::skip_slice`]) if there are any.
     pub fn slices(&self) -> Vec<&[f32]> {
-        let mut out = Vec::with_capacity(2 * self.w.len());
+        let mut out = Vec::with_capacity(2 * self.w.len() + 1);
         for (w, b) in self.w.iter().zip(&self.b) {
             out.push(w.as_slice().unwrap_or(&[]));
             out.push(b.as_slice().unwrap_or(&[]));
         }
+        if let Some(skip) = &self.skip {
+            out.push(skip.as_slice().unwrap_or(&[]));
+        }
         out
+    }
+
+    /// Where the input-to-output weights are among [`Self::slices`], if there are any.
+    pub fn skip_slice(&self) -> Option<usize> {
+        self.skip.as_ref().map(|_| 2 * self.w.len())
     }
 
     /// Every parameter as a flat mutable slice, in the order of [`Self::slices`].
     pub fn slices_mut(&mut self) -> Vec<&mut [f32]> {
-        let mut out = Vec::with_capacity(2 * self.w.len());
+        let mut out = Vec::with_capacity(2 * self.w.len() + 1);
         for (w, b) in self.w.iter_mut().zip(&mut self.b) {
             out.push(w.as_slice_mut().unwrap_or(&mut []));
             out.push(b.as_slice_mut().unwrap_or(&mut []));
+        }
+        if let Some(skip) = &mut self.skip {
+            out.push(skip.as_slice_mut().unwrap_or(&mut []));
         }
         out
     }
@@ -189,6 +211,12 @@ impl HostMlp {
                 (0, HostInput::Dense(x)) => mat_mul(x, self.w[0].view(), out.view_mut()),
                 (0, HostInput::Sparse(x)) => x.mul(&self.w[0], out),
                 _ => mat_mul(done[i - 1].view(), self.w[i].t(), out.view_mut()),
+            }
+            if let (true, Some(skip)) = (i + 1 == n, &self.skip) {
+                match x {
+                    HostInput::Dense(x) => *out += &x.dot(skip),
+                    HostInput::Sparse(x) => x.mul_add(skip, out),
+                }
             }
             if i + 1 == n && output_bias == OutputBias::ByCaller {
                 break;
@@ -218,6 +246,13 @@ impl HostMlp {
         input_weights: InputWeights,
     ) {
         let last = self.w.len().saturating_sub(1);
+        if let (Some(g), InputWeights::InPass) = (grads.skip.as_mut(), input_weights) {
+            let delta = &work.delta[last];
+            match x {
+                HostInput::Dense(x) => mat_mul(x.t(), delta.view(), g.view_mut()),
+                HostInput::Sparse(x) => x.outer(delta, g),
+            }
+        }
         for i in (0..self.w.len()).rev() {
             let (lower, upper) = work.delta.split_at_mut(i);
             let delta = &upper[0];
@@ -246,6 +281,14 @@ impl HostMlp {
             }
         }
     }
+}
+
+/// A burn layer's weights in its layout, `[in, out]`.
+fn burn_weight(layer: &burn::nn::Linear) -> Array2<f32> {
+    let weight = layer.weight.val();
+    let [rows, cols] = weight.dims();
+    Array2::from_shape_vec((rows, cols), crate::to_vec(weight))
+        .unwrap_or_else(|_| Array2::zeros((rows, cols)))
 }
 
 /// FLOPs above which a product is split into parts run side by side (rayon's pool):
@@ -317,6 +360,7 @@ mod tests {
                 Array2::from_shape_fn((3, 5), |(i, j)| value(j + 1, i)), // [out, in]
             ],
             b: vec![Array1::from(vec![0.1; 5]), Array1::from(vec![-0.2; 3])],
+            skip: Some(Array2::from_shape_fn((input, 3), |(i, j)| value(j + 2, i))),
         };
         // two non-zero entries per row of 40
         let mut x = Array2::zeros((rows, input));
@@ -344,6 +388,7 @@ mod tests {
             hidden: vec![4, 6],
             output: 3,
             output_gain: 1.0,
+            skip: true,
         };
         let mut mlp = config.init(&mut rng, &device);
         let host = HostMlp::from_burn(&mlp);

@@ -123,16 +123,24 @@ impl SparseRows {
     /// # Panics
     /// When the shapes do not fit together.
     pub(super) fn mul(&self, w: &Array2<f32>, out: &mut Array2<f32>) {
+        out.fill(0.0);
+        self.mul_add(w, out);
+    }
+
+    /// `out += x w` (`w` is `[cols, out]`).
+    ///
+    /// # Panics
+    /// When the shapes do not fit together.
+    pub(super) fn mul_add(&self, w: &Array2<f32>, out: &mut Array2<f32>) {
         let width = w.ncols();
         assert!(
             w.nrows() == self.cols && out.dim() == (self.nrows(), width),
-            "sparse [{}, {}] times {:?} into {:?}",
+            "sparse [{}, {}] times {:?} added to {:?}",
             self.nrows(),
             self.cols,
             w.dim(),
             out.dim()
         );
-        out.fill(0.0);
         match (out.as_slice_mut(), w.as_slice()) {
             (Some(out), Some(w)) => sparse_product(self, w, out, width),
             _ => {

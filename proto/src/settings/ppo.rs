@@ -48,6 +48,10 @@ pub struct PpoConfig {
     pub target_kl: Option<f64>,
     /// Hidden widths of the policy and of the critic (separate networks, tanh).
     pub hidden: Vec<usize>,
+    /// Add to the actor a linear path from its input straight to its outputs, starting at
+    /// zero ("wide and deep"): on one-hot states (the recommender's items) a score per
+    /// (state item, action) that a narrow hidden layer cannot hold.
+    pub wide_actor: bool,
     /// Initial log standard deviation of the Gaussian policy.
     pub init_log_std: f32,
     /// Bound the Gaussian mean with tanh to `[-1, 1]` (JSAE: the action-embedding space is
@@ -97,6 +101,7 @@ impl Default for PpoConfig {
             norm_adv: true,
             target_kl: None,
             hidden: vec![64, 64],
+            wide_actor: false,
             init_log_std: 0.0,
             tanh_mean: false,
             reward_scaling: true,
