@@ -126,6 +126,7 @@ impl EmbeddingModel {
                     output: *dim,
                     output_gain: 1.0,
                     skip: false,
+                    zero_inputs: 0,
                 };
                 (None, g, Some(decoder.init(rng, device)))
             }

@@ -2,11 +2,16 @@
 //! Gaussian head (state-independent log-std parameter, so the std `exp(log_std)` stays
 //! positive) or a categorical head.
 
+use std::sync::{Arc, OnceLock};
+
 use burn::module::{Module, Param};
 use burn::tensor::activation::log_softmax;
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use jsae_nn::{self as nn, Mlp, MlpConfig, RecordError};
+use jsae_nn::{
+    self as nn, HostInput, HostMlp, Mlp, MlpConfig, MlpWork, PairCross, RecordError, SparseRows,
+};
 use jsae_proto::{ActionBatch, ActionSpace};
+use ndarray::ArrayView2;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
@@ -86,6 +91,13 @@ pub struct Policy {
     tanh_mean: bool,
     /// Where the entropy bonus stops counting the log-std (`PpoConfig::entropy_log_std_cap`).
     entropy_log_std_max: f32,
+    /// The crossed pair feature the networks read after `input` (`ppo.pair_buckets`,
+    /// `pair_hashes`, `pair_scale`), if any.
+    pair: Option<PairCross>,
+    /// The actor on the host, for inference on crossed one-hot inputs (a lookup of a few
+    /// weight rows instead of a dense product over every bucket); copied from `net` at the
+    /// first use after the weights change.
+    host_actor: OnceLock<Arc<HostMlp>>,
     device: Device,
 }
 
@@ -104,6 +116,7 @@ impl Policy {
             output: head.outputs(),
             output_gain: 0.01,
             skip: config.wide_actor,
+            zero_inputs: config.pair_buckets,
         }
         .init(rng, device);
         let critic = MlpConfig {
@@ -112,6 +125,7 @@ impl Policy {
             output: 1,
             output_gain: 1.0,
             skip: false,
+            zero_inputs: config.pair_buckets,
         }
         .init(rng, device);
         let dim = match head {
@@ -130,8 +144,19 @@ impl Policy {
             input,
             tanh_mean: config.tanh_mean,
             entropy_log_std_max: config.entropy_log_std_cap().unwrap_or(LOG_STD_MAX),
+            pair: (config.pair_buckets > 0).then_some(PairCross {
+                buckets: config.pair_buckets,
+                hashes: config.pair_hashes,
+                value: config.pair_scale,
+            }),
+            host_actor: OnceLock::new(),
             device: device.clone(),
         }
+    }
+
+    /// The crossed pair feature after the input ([`jsae_nn::SparseRows::crossed`]), if any.
+    pub fn pair_feature(&self) -> Option<PairCross> {
+        self.pair
     }
 
     /// The output distribution.
@@ -172,11 +197,13 @@ impl Policy {
     /// Replaces the weights (after an optimiser step).
     pub fn set_net(&mut self, net: PolicyNet) {
         self.net = net;
+        self.host_actor = OnceLock::new();
     }
 
     /// Replaces the trainable weights with `params` (what the host update trained), keeping
     /// each parameter's id and the observation statistics.
     pub(crate) fn load_host(&mut self, params: &crate::fused::HostParams) {
+        self.host_actor = OnceLock::new();
         self.net.actor.set_from_host(&params.actor);
         self.net.critic.set_from_host(&params.critic);
         let values = params.log_std.as_slice().unwrap_or(&[]);
@@ -191,6 +218,7 @@ impl Policy {
     pub fn for_inference(&self, device: &Device) -> Self {
         Self {
             net: self.net.valid().to_device(device),
+            host_actor: OnceLock::new(),
             device: device.clone(),
             ..self.clone()
         }
@@ -204,6 +232,7 @@ impl Policy {
     /// Loads weights from bytes (structure checked).
     pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
         self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        self.host_actor = OnceLock::new();
         Ok(())
     }
 
@@ -238,7 +267,8 @@ impl Policy {
         self.net.obs_norm.as_ref().map(ObsNorm::stats)
     }
 
-    /// `V(x)`: `[batch, input] -> [batch]`.
+    /// `V(x)`: `[batch, input] -> [batch]` (through burn: a policy without the pair feature,
+    /// which only the fused update's host passes build).
     pub fn value(&self, x: Tensor<2>) -> Tensor<1> {
         let v = self.net.critic.forward(self.input(x));
         let [b, _] = v.dims();
@@ -255,7 +285,7 @@ impl Policy {
     }
 
     /// Log-probabilities, entropies and values of `actions` at `x` (with gradients on an
-    /// autodiff device).
+    /// autodiff device; a policy without the pair feature, as [`Self::value`]).
     pub fn evaluate(&self, x: Tensor<2>, actions: &ActionBatch) -> Evaluation {
         let value = self.value(x.clone());
         let out = self.actor_out(x); // [batch, outputs]
@@ -307,12 +337,32 @@ impl Policy {
         if batch == 0 {
             return Vec::new();
         }
+        if let Some(cross) = self.pair {
+            return self.crossed_head_outputs(&x[..batch * self.input], cross);
+        }
         nn::to_vec(self.actor_out(nn::tensor2(
             x[..batch * self.input].to_vec(),
             batch,
             self.input,
             &self.device,
         )))
+    }
+
+    /// [`Self::head_outputs`] of one-hot rows `x` with their crossed pair feature, on the host.
+    fn crossed_head_outputs(&self, x: &[f32], cross: PairCross) -> Vec<f32> {
+        let rows = x.len() / self.input.max(1);
+        let view = ArrayView2::from_shape((rows, self.input), x).expect("whole rows of the input");
+        let crossed = SparseRows::crossed(view, cross);
+        let actor = self
+            .host_actor
+            .get_or_init(|| Arc::new(HostMlp::from_burn(&self.net.actor)));
+        let mut work = MlpWork::default();
+        actor.forward(HostInput::Sparse(&crossed), &mut work);
+        let out = work.output().iter().copied();
+        match self.head {
+            PolicyHead::Gaussian { .. } if self.tanh_mean => out.map(f32::tanh).collect(),
+            _ => out.collect(),
+        }
     }
 
     /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of

@@ -24,6 +24,11 @@ pub struct MlpConfig {
     /// entry, which a narrow hidden layer cannot hold). Starts at zero.
     #[serde(default)]
     pub skip: bool,
+    /// Input columns past `input` whose weights start at zero (a crossed feature's buckets,
+    /// [`crate::SparseRows::crossed`]): the network reads `input + zero_inputs` columns and
+    /// starts as the network of the first `input` alone, initialised as that one would be.
+    #[serde(default)]
+    pub zero_inputs: usize,
 }
 
 impl MlpConfig {
@@ -43,9 +48,17 @@ impl MlpConfig {
             rng,
             device,
         ));
+        let inputs = self.input + self.zero_inputs;
+        if let (Some(first), true) = (layers.first_mut(), self.zero_inputs > 0) {
+            // zero rows below the first layer's [input, out] weights; biases are zero
+            let out = first.weight.val().dims()[1];
+            let mut w = crate::to_vec(first.weight.val());
+            w.resize(inputs * out, 0.0);
+            *first = crate::linear_from_host(w, Some(vec![0.0; out]), inputs, out, device);
+        }
         let skip = self.skip.then(|| {
-            let zeros = vec![0.0; self.input * self.output];
-            crate::linear_from_host(zeros, None, self.input, self.output, device)
+            let zeros = vec![0.0; inputs * self.output];
+            crate::linear_from_host(zeros, None, inputs, self.output, device)
         });
         Mlp {
             layers,

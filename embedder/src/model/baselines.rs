@@ -59,6 +59,7 @@ pub(super) fn inverse_heads(
         output: config.action_dim,
         output_gain: 1.0,
         skip: false,
+        zero_inputs: 0,
     };
     net.inverse = Some(inverse.init(rng, device));
     if matches!(actions, ActionSpace::Discrete { .. }) {

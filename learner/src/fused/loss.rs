@@ -66,6 +66,7 @@ impl HostPolicy {
         while work.parts.len() < parts.len() {
             work.parts.push(super::PartWork::new(self));
         }
+        let accumulate = work.accumulate_input_rows;
         let used = &mut work.parts[..parts.len()];
         let sums: Vec<PartSums> = parts
             .par_iter()
@@ -76,6 +77,7 @@ impl HostPolicy {
                 // into the first part's gradient afterwards
                 let input_weights = match mb.x {
                     HostInput::Sparse(_) if k > 0 => InputWeights::ByCaller,
+                    HostInput::Sparse(_) if accumulate => InputWeights::Accumulate,
                     _ => InputWeights::InPass,
                 };
                 self.part_pass(mb, cfg, bf, input_weights, part)
@@ -87,10 +89,7 @@ impl HostPolicy {
         }
         let (first, rest) = used.split_at_mut(1);
         let grads = &mut first[0].grads;
-        // the places among the parameter slices (the actor's, then the critic's) of the
-        // weights that read the input: each MLP's first layer, the actor's skip path
-        let actor_slices = self.params.actor.slices().len();
-        let input_layers = [Some(0), Some(actor_slices), self.params.actor.skip_slice()];
+        let input_layers = self.params.input_layers();
         for (mb, other) in parts.iter().skip(1).zip(rest.iter()) {
             let sparse = match mb.x {
                 HostInput::Sparse(x) => {
@@ -106,7 +105,7 @@ impl HostPolicy {
             let mut part = other.grads.slices();
             if sparse {
                 // added above, row by row; an empty slice adds nothing
-                for i in input_layers.into_iter().flatten() {
+                for &(i, _) in &input_layers {
                     part[i] = &[];
                 }
             }

@@ -62,6 +62,33 @@ impl HostParams {
         out.push(self.log_std.as_slice_mut().unwrap_or(&mut []));
         out
     }
+
+    /// The weights that read the input, as (place among [`Self::slices`], values per input
+    /// row): each MLP's first layer, and the actor's input-to-output path where it has one.
+    pub fn input_layers(&self) -> Vec<(usize, usize)> {
+        let actor_slices = self.actor.slices().len();
+        let mut out = vec![
+            (0, self.actor.w[0].ncols()),
+            (actor_slices, self.critic.w[0].ncols()),
+        ];
+        if let (Some(i), Some(skip)) = (self.actor.skip_slice(), &self.actor.skip) {
+            out.push((i, skip.ncols()));
+        }
+        out
+    }
+
+    /// Per slice of [`Self::slices`]: `touched` rows of the weights that read the input
+    /// ([`Self::input_layers`]), nothing for the others (a lazy Adam step's rows).
+    pub fn input_rows<'a>(&self, touched: &'a [u32]) -> Vec<Option<jsae_nn::host::Rows<'a>>> {
+        let mut out = vec![None; self.slices().len()];
+        for (i, width) in self.input_layers() {
+            out[i] = Some(jsae_nn::host::Rows {
+                width,
+                rows: touched,
+            });
+        }
+        out
+    }
 }
 
 /// A policy on the host: its parameters and its head.
@@ -169,6 +196,9 @@ impl PartWork {
 pub struct FusedWork {
     parts: Vec<PartWork>,
     log_ratio: Vec<f32>,
+    /// One-hot inputs' first-layer gradients are added into the rows they pick
+    /// ([`jsae_nn::InputWeights::Accumulate`]); the caller clears those rows after each step.
+    pub accumulate_input_rows: bool,
 }
 
 impl FusedWork {
@@ -177,12 +207,24 @@ impl FusedWork {
         Self {
             parts: vec![PartWork::new(policy)],
             log_ratio: Vec::new(),
+            accumulate_input_rows: false,
         }
     }
 
     /// The gradients of the last [`HostPolicy::loss_and_grads`].
     pub fn grads(&self) -> &HostGrads {
         &self.parts[0].grads
+    }
+
+    /// Sets the gradients to zero in `rows` (per slice of [`HostParams::slices`], as
+    /// [`HostParams::input_rows`] gives them): after a lazy step, with
+    /// [`Self::accumulate_input_rows`], the rows it read.
+    pub fn clear_grad_rows(&mut self, rows: &[Option<jsae_nn::host::Rows<'_>>]) {
+        for (g, r) in self.parts[0].grads.slices_mut().into_iter().zip(rows) {
+            if let Some(r) = r {
+                jsae_nn::host::zero_rows(g, *r);
+            }
+        }
     }
 
     /// `logp - old_logp` per sample of the last minibatch.

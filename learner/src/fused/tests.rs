@@ -393,17 +393,32 @@ fn one_hot_parts(wide_actor: bool) {
                 ..whole.clone()
             })
             .collect();
-        let loss = host.loss_and_grads(&minibatches, cfg, &mut work).total;
-        let what = format!("{} parts", parts.len());
-        close(&[loss], &[expected_loss], &what);
-        for (k, (g, e)) in work
-            .grads()
-            .slices()
-            .iter()
-            .zip(expected.slices())
-            .enumerate()
-        {
-            close(g, e, &format!("{what}: parameter slice {k}"));
+        // overwritten, or (for a lazy optimiser) added into buffers whose picked rows are
+        // cleared after each step: twice, so the clearing is checked too
+        let mut lazy = FusedWork::new(&host);
+        lazy.accumulate_input_rows = true;
+        for (work, what) in [(&mut work, "overwritten"), (&mut lazy, "accumulated")] {
+            for round in 0..2 {
+                let loss = host.loss_and_grads(&minibatches, cfg, work).total;
+                let what = format!("{} parts, {what}, round {round}", parts.len());
+                close(&[loss], &[expected_loss], &what);
+                for (k, (g, e)) in work
+                    .grads()
+                    .slices()
+                    .iter()
+                    .zip(expected.slices())
+                    .enumerate()
+                {
+                    close(g, e, &format!("{what}: parameter slice {k}"));
+                }
+                let mut touched = Vec::new();
+                parts.iter().for_each(|p| p.columns_into(&mut touched));
+                touched.sort_unstable();
+                touched.dedup();
+                if work.accumulate_input_rows {
+                    work.clear_grad_rows(&host.params.input_rows(&touched));
+                }
+            }
         }
     }
 }

@@ -114,7 +114,12 @@ impl Batch {
             all_x.extend_from_slice(&f.truncated_next_x);
             all_x.extend_from_slice(&f.last_next_x);
         }
-        let inputs = NetworkInput::new(all_x, x_dim, obs_stats(policy).as_ref());
+        let inputs = NetworkInput::new(
+            all_x,
+            x_dim,
+            obs_stats(policy).as_ref(),
+            policy.pair_feature(),
+        );
         let values = HostPolicy::values(policy, inputs.host());
 
         let mut x = std::mem::take(&mut buffers.x);
@@ -308,8 +313,14 @@ pub(super) enum NetworkInput {
 impl NetworkInput {
     /// Rows of `x` (`[rows, d]` row-major) as the network sees them: normalised by the
     /// policy's statistics if it normalises, and as their non-zero entries where at most an
-    /// eighth of them are non-zero.
-    fn new(x: &[f32], d: usize, stats: Option<&(Vec<f32>, Vec<f32>)>) -> Self {
+    /// eighth of them are non-zero; with a pair feature (one-hot rows, no normalisation) as
+    /// their entries and their crossed pair feature ([`SparseRows::crossed`]).
+    fn new(
+        x: &[f32],
+        d: usize,
+        stats: Option<&(Vec<f32>, Vec<f32>)>,
+        pair: Option<jsae_nn::PairCross>,
+    ) -> Self {
         if let Some(stats) = stats {
             return Self::Dense(normalised(x, d, stats));
         }
@@ -317,6 +328,9 @@ impl NetworkInput {
         let Ok(view) = ArrayView2::from_shape((rows, d), &x[..rows * d]) else {
             return Self::Dense(Array2::zeros((rows, d)));
         };
+        if let Some(cross) = pair {
+            return Self::Sparse(SparseRows::crossed(view, cross));
+        }
         SparseRows::from_dense(view).map_or_else(|| Self::Dense(view.to_owned()), Self::Sparse)
     }
 
@@ -384,6 +398,19 @@ impl HostRows {
         for (part, rows) in self.parts.iter_mut().zip(rows.chunks(per)) {
             part.fill(batch, x, rows, stats);
         }
+    }
+
+    /// The columns the last minibatch's sparse inputs use, ascending and each once, into
+    /// `out` (cleared first; nothing for dense inputs).
+    pub(super) fn sparse_columns(&self, out: &mut Vec<u32>) {
+        out.clear();
+        for part in &self.parts[..self.used] {
+            if part.sparse_input {
+                part.sparse.columns_into(out);
+            }
+        }
+        out.sort_unstable();
+        out.dedup();
     }
 
     /// The parts as the fused loss reads them.

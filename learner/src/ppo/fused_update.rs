@@ -4,7 +4,8 @@
 //! ([`jsae_nn::host`]); the trained weights are written back into the burn policy at the end,
 //! so snapshots, inference and checkpoints read the same parameters.
 
-use jsae_nn::{HostAdam, clip_scale, global_norm};
+use jsae_nn::host::global_norm_rows;
+use jsae_nn::{HostAdam, clip_scale};
 use rand::seq::SliceRandom;
 
 use super::batch::{Batch, HostRows, NetworkInput};
@@ -68,6 +69,10 @@ fn epochs(
         next_purchase_coef: config.next_purchase_coef as f32,
     };
     let work = state.work.get_or_insert_with(|| FusedWork::new(host));
+    // the crossed feature's first layers are stepped only in the rows a minibatch touches
+    let lazy = config.pair_buckets > 0 && matches!(x, NetworkInput::Sparse(_));
+    work.accumulate_input_rows = lazy;
+    let mut touched = Vec::new();
     let mb = config.minibatch_size.min(batch.len()).max(1);
     let (mut grad_sum, mut grad_count) = (0.0, 0);
     let mut last = EpochStats::default();
@@ -79,15 +84,22 @@ fn epochs(
             // a short last minibatch may be split into fewer parts
             let parts = minibatch_parts(rows.len());
             state.rows.fill(batch, x, rows, config.norm_adv, parts);
+            let rows = if lazy {
+                state.rows.sparse_columns(&mut touched);
+                host.params.input_rows(&touched)
+            } else {
+                Vec::new()
+            };
             let loss = host.loss_and_grads(&state.rows.views(), cfg, work);
             let grads = work.grads().slices();
-            let norm = global_norm(&grads);
+            let norm = global_norm_rows(&grads, &rows);
             grad_sum += f64::from(norm);
             grad_count += 1;
             let scale = clip_scale(norm, config.max_grad_norm);
             state
                 .adam
-                .step(lr, scale, &mut host.params.slices_mut(), &grads);
+                .step_rows(lr, scale, &mut host.params.slices_mut(), &grads, &rows);
+            work.clear_grad_rows(&rows);
             stats.add(
                 work.log_ratio(),
                 cfg.clip,

@@ -99,3 +99,101 @@ fn one_hot_inputs_and_a_wide_head_split_between_threads_move_the_weights_alike()
     // 60 x 1,200 logits: the softmax rows and the output layer's products are split
     compare(PolicyHead::Categorical { n: 1200 }, false, true);
 }
+
+/// Rewrites `x` (rows of two one-hot factors of `size`) with random values of both; the
+/// crossed buckets of the rows are added to `buckets`.
+fn two_factors(
+    x: &mut [f32],
+    size: usize,
+    pair_buckets: usize,
+    buckets: &mut Vec<usize>,
+    rng: &mut ChaCha8Rng,
+) {
+    for row in x.chunks_mut(2 * size) {
+        row.fill(0.0);
+        let (a, b) = (rng.random_range(0..size), size + rng.random_range(0..size));
+        (row[a], row[b]) = (1.0, 1.0);
+        buckets.push(jsae_nn::pair_bucket(a as u32, b as u32, 0, pair_buckets));
+    }
+}
+
+#[test]
+fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_model() {
+    let (size, pair_buckets, n) = (7, 64, 6);
+    let x_dim = 2 * size;
+    let config = PpoConfig {
+        batch_steps: 4 * STEPS,
+        epochs: 2,
+        minibatch_size: 60,
+        pair_buckets,
+        pair_scale: 2.0,
+        next_purchase_coef: 0.5,
+        ..PpoConfig::default()
+    };
+    let head = PolicyHead::Categorical { n };
+    let mut learner = Learner::new(config, x_dim, head, 0, 7, DeviceKind::Flex);
+    let start = HostPolicy::from_policy(learner.policy());
+    assert!(
+        start.params.actor.w[0]
+            .rows()
+            .into_iter()
+            .skip(x_dim)
+            .all(|r| r.iter().all(|&v| v == 0.0)),
+        "the bucket rows start at zero"
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let (mut trained, mut other) = (Vec::new(), Vec::new());
+    for _ in 0..4 {
+        let mut f = crate::synthetic::fragment(x_dim, head, 0, STEPS, &mut rng);
+        two_factors(&mut f.x, size, pair_buckets, &mut trained, &mut rng);
+        two_factors(
+            &mut f.truncated_next_x,
+            size,
+            pair_buckets,
+            &mut other,
+            &mut rng,
+        );
+        two_factors(&mut f.last_next_x, size, pair_buckets, &mut other, &mut rng);
+        learner.ingest(f).expect("ingests");
+    }
+    assert_eq!(learner.updates(), 1);
+    let end = HostPolicy::from_policy(learner.policy());
+    for (net, w) in [
+        ("actor", &end.params.actor.w[0]),
+        ("critic", &end.params.critic.w[0]),
+    ] {
+        for bucket in 0..pair_buckets {
+            let row = w.row(x_dim + bucket);
+            let moved = row.iter().any(|&v| v != 0.0);
+            assert_eq!(
+                moved,
+                trained.contains(&bucket),
+                "{net}: bucket {bucket} moved {moved}"
+            );
+        }
+    }
+    let distinct = (0..pair_buckets).filter(|b| trained.contains(b)).count();
+    assert!(
+        (10..pair_buckets).contains(&distinct),
+        "{distinct} buckets trained"
+    );
+
+    // acting on the host equals burn's model on the crossed feature written out densely
+    let mut x = vec![0.0; 5 * x_dim];
+    let mut buckets = Vec::new();
+    two_factors(&mut x, size, pair_buckets, &mut buckets, &mut rng);
+    let host = learner.policy().head_outputs(&x);
+    let width = x_dim + pair_buckets;
+    let mut dense = vec![0.0; 5 * width];
+    for (r, (row, bucket)) in x.chunks(x_dim).zip(&buckets).enumerate() {
+        dense[r * width..r * width + x_dim].copy_from_slice(row);
+        dense[r * width + x_dim + bucket] = 2.0;
+    }
+    let (actor, _, _) = learner.policy().parts();
+    let device = learner.policy().device().clone();
+    let burn = jsae_nn::to_vec(actor.forward(jsae_nn::tensor2(dense, 5, width, &device)));
+    assert_eq!(host.len(), burn.len());
+    for (h, b) in host.iter().zip(&burn) {
+        assert!((h - b).abs() < 1e-5, "host {h}, burn {b}");
+    }
+}

@@ -40,6 +40,21 @@ impl HostAdam {
     /// [`clip_scale`], or 1). The lists must keep their order and shapes from step to step
     /// (a shape change restarts the moments of that slice).
     pub fn step(&mut self, lr: f32, grad_scale: f32, params: &mut [&mut [f32]], grads: &[&[f32]]) {
+        self.step_rows(lr, grad_scale, params, grads, &[]);
+    }
+
+    /// [`Self::step`], where slice `i` with `rows[i]` given is stepped only in those rows
+    /// (the "lazy" Adam of sparse embeddings: a row no minibatch touches keeps its value and
+    /// its moments, where dense Adam would go on moving it by its decaying momentum). Its
+    /// gradient is read in those rows only. A missing or `None` entry steps the whole slice.
+    pub fn step_rows(
+        &mut self,
+        lr: f32,
+        grad_scale: f32,
+        params: &mut [&mut [f32]],
+        grads: &[&[f32]],
+        rows: &[Option<Rows<'_>>],
+    ) {
         if self.moment_1.len() != params.len() {
             self.moment_1 = params.iter().map(|p| vec![0.0; p.len()]).collect();
             self.moment_2 = self.moment_1.clone();
@@ -52,22 +67,32 @@ impl HostAdam {
         let factor = bias_2_sqrt / bias_1;
         let eps = self.epsilon * bias_2_sqrt;
         let mut pieces = Vec::new();
-        for (((p, g), m), v) in params
+        for (i, (((p, g), m), v)) in params
             .iter_mut()
             .zip(grads)
             .zip(&mut self.moment_1)
             .zip(&mut self.moment_2)
+            .enumerate()
         {
             if m.len() != p.len() {
                 *m = vec![0.0; p.len()];
                 *v = vec![0.0; p.len()];
             }
-            pieces.extend(
-                p.chunks_mut(PIECE)
-                    .zip(g.chunks(PIECE))
-                    .zip(m.chunks_mut(PIECE))
-                    .zip(v.chunks_mut(PIECE)),
-            );
+            match rows.get(i).copied().flatten() {
+                Some(r) => pieces.extend(
+                    r.of_mut(p)
+                        .into_iter()
+                        .zip(r.of(g))
+                        .zip(r.of_mut(m))
+                        .zip(r.of_mut(v)),
+                ),
+                None => pieces.extend(
+                    p.chunks_mut(PIECE)
+                        .zip(g.chunks(PIECE))
+                        .zip(m.chunks_mut(PIECE))
+                        .zip(v.chunks_mut(PIECE)),
+                ),
+            }
         }
         let step = AdamPiece {
             b1,
@@ -87,6 +112,68 @@ impl HostAdam {
                 .into_par_iter()
                 .for_each(|(((p, g), m), v)| arch.dispatch(step.on(p, g, m, v)));
         }
+    }
+}
+
+/// The rows of a row-major `[_, width]` slice that a lazy step reads and writes
+/// ([`HostAdam::step_rows`], [`global_norm_rows`], [`zero_rows`]).
+#[derive(Debug, Clone, Copy)]
+pub struct Rows<'a> {
+    /// Values per row.
+    pub width: usize,
+    /// Row indices, ascending, without repeats.
+    pub rows: &'a [u32],
+}
+
+impl Rows<'_> {
+    /// The rows of `s`.
+    ///
+    /// # Panics
+    /// When a row is past the end of `s`.
+    fn of(self, s: &[f32]) -> Vec<&[f32]> {
+        let w = self.width;
+        self.rows
+            .iter()
+            .map(|&r| &s[r as usize * w..(r as usize + 1) * w])
+            .collect()
+    }
+
+    /// The rows of `s`, mutable (disjoint borrows, taken in ascending order).
+    ///
+    /// # Panics
+    /// When the rows are not ascending or a row is past the end of `s`.
+    fn of_mut(self, s: &mut [f32]) -> Vec<&mut [f32]> {
+        let w = self.width;
+        let mut out = Vec::with_capacity(self.rows.len());
+        let (mut rest, mut at) = (s, 0usize);
+        for &r in self.rows {
+            let r = r as usize;
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut((r - at) * w);
+            let (row, tail) = tail.split_at_mut(w);
+            out.push(row);
+            (rest, at) = (tail, r + 1);
+        }
+        out
+    }
+}
+
+/// [`global_norm`], reading slice `i` only in `rows[i]` where given (the others must be
+/// zero there, as [`HostAdam::step_rows`]'s callers keep them).
+pub fn global_norm_rows(grads: &[&[f32]], rows: &[Option<Rows<'_>>]) -> f32 {
+    let mut pieces: Vec<&[f32]> = Vec::new();
+    for (i, g) in grads.iter().enumerate() {
+        match rows.get(i).copied().flatten() {
+            Some(r) => pieces.extend(r.of(g)),
+            None => pieces.push(g),
+        }
+    }
+    global_norm(&pieces)
+}
+
+/// Sets `rows` of `s` to zero.
+pub fn zero_rows(s: &mut [f32], rows: Rows<'_>) {
+    for row in rows.of_mut(s) {
+        row.fill(0.0);
     }
 }
 
@@ -222,6 +309,46 @@ mod tests {
     struct Two {
         a: Param<Tensor<1>>,
         b: Param<Tensor<1>>,
+    }
+
+    #[test]
+    fn lazy_steps_move_only_the_rows_given_and_equal_dense_steps_on_them() {
+        // [4, 3] weights and a plain slice; rows 1 and 3 touched every step
+        let p0: Vec<f32> = (0..12).map(|i| (i as f32 * 0.7).sin()).collect();
+        let q0 = vec![0.5f32, -0.25];
+        let touched = [1u32, 3];
+        let rows = [Some(Rows {
+            width: 3,
+            rows: &touched,
+        })];
+        let (mut lazy, mut dense) = (HostAdam::new(1e-5), HostAdam::new(1e-5));
+        let (mut pl, mut ql, mut pd, mut qd) = (p0.clone(), q0.clone(), p0.clone(), q0.clone());
+        for step in 1..4 {
+            let g: Vec<f32> = (0..12)
+                .map(|i| {
+                    if [1, 3].contains(&(i / 3)) {
+                        (i * step) as f32 * 0.1 - 0.4
+                    } else {
+                        0.0
+                    }
+                })
+                .collect();
+            let gq = vec![0.3 * step as f32, -0.1];
+            let norm = global_norm_rows(&[&g, &gq], &rows);
+            assert!((norm - global_norm(&[&g, &gq])).abs() < 1e-6);
+            lazy.step_rows(1e-2, 0.5, &mut [&mut pl, &mut ql], &[&g, &gq], &rows);
+            dense.step(1e-2, 0.5, &mut [&mut pd, &mut qd], &[&g, &gq]);
+        }
+        // untouched rows are where they started; the touched ones and the plain slice equal
+        // dense Adam's (whose untouched rows never saw a gradient, so stay too)
+        assert_eq!(&pl[0..3], &p0[0..3]);
+        assert_eq!(&pl[6..9], &p0[6..9]);
+        assert_eq!(pl, pd);
+        assert_eq!(ql, qd);
+        let mut g = vec![1.0f32; 12];
+        zero_rows(&mut g, rows[0].expect("rows"));
+        assert_eq!(g.iter().filter(|&&v| v == 0.0).count(), 6);
+        assert_eq!(&g[3..6], &[0.0; 3]);
     }
 
     #[test]

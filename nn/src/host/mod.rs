@@ -16,9 +16,11 @@ mod sparse;
 
 use ndarray::{Array1, Array2, ArrayView2, ArrayViewMut2, Axis};
 
-pub use adam::{HostAdam, add_gradients, clip_scale, global_norm};
+pub use adam::{
+    HostAdam, Rows, add_gradients, clip_scale, global_norm, global_norm_rows, zero_rows,
+};
 pub use dense::product;
-pub use sparse::{HostInput, SparseRows};
+pub use sparse::{HostInput, PairCross, SparseRows, pair_bucket};
 
 /// An MLP's weights on the host, tanh between layers, none after the last. The first layer's
 /// weights are `[in, out]` (burn's layout: a one-hot input picks weight rows); every later
@@ -101,6 +103,12 @@ pub enum InputWeights {
     /// It is left unwritten; the caller adds `x^T` [`MlpWork::input_layer_grad`] where it
     /// wants it.
     ByCaller,
+    /// On one-hot (sparse) inputs, added into the gradient buffer's rows that the inputs pick
+    /// instead of overwriting the whole buffer: the caller keeps every other row at zero
+    /// (a lazy optimiser that reads and clears only the rows a minibatch touched; on a first
+    /// layer of ~10^6 weights a pass over the whole buffer per minibatch costs more than
+    /// the minibatch). Dense inputs are written as with [`Self::InPass`].
+    Accumulate,
 }
 
 /// Who handles the last layer's bias. On a wide output (thousands of logits) a pass over it
@@ -246,11 +254,13 @@ impl HostMlp {
         input_weights: InputWeights,
     ) {
         let last = self.w.len().saturating_sub(1);
-        if let (Some(g), InputWeights::InPass) = (grads.skip.as_mut(), input_weights) {
+        if let Some(g) = grads.skip.as_mut() {
             let delta = &work.delta[last];
-            match x {
-                HostInput::Dense(x) => mat_mul(x.t(), delta.view(), g.view_mut()),
-                HostInput::Sparse(x) => x.outer(delta, g),
+            match (x, input_weights) {
+                (_, InputWeights::ByCaller) => {}
+                (HostInput::Dense(x), _) => mat_mul(x.t(), delta.view(), g.view_mut()),
+                (HostInput::Sparse(x), InputWeights::Accumulate) => x.outer_add(delta, g),
+                (HostInput::Sparse(x), _) => x.outer(delta, g),
             }
         }
         for i in (0..self.w.len()).rev() {
@@ -259,6 +269,9 @@ impl HostMlp {
             match (i, x) {
                 (0, _) if input_weights == InputWeights::ByCaller => {}
                 (0, HostInput::Dense(x)) => mat_mul(x.t(), delta.view(), grads.w[0].view_mut()),
+                (0, HostInput::Sparse(x)) if input_weights == InputWeights::Accumulate => {
+                    x.outer_add(delta, &mut grads.w[0])
+                }
                 (0, HostInput::Sparse(x)) => x.outer(delta, &mut grads.w[0]),
                 // [out, in] = [out, rows] x [rows, in]
                 _ => mat_mul(delta.t(), work.acts[i - 1].view(), grads.w[i].view_mut()),
@@ -389,6 +402,7 @@ mod tests {
             output: 3,
             output_gain: 1.0,
             skip: true,
+            zero_inputs: 0,
         };
         let mut mlp = config.init(&mut rng, &device);
         let host = HostMlp::from_burn(&mlp);

@@ -52,6 +52,21 @@ pub struct PpoConfig {
     /// zero ("wide and deep"): on one-hot states (the recommender's items) a score per
     /// (state item, action) that a narrow hidden layer cannot hold.
     pub wide_actor: bool,
+    /// Buckets of a crossed feature of one-hot states (0: none): the last two factors'
+    /// values (the recommender's item before the last and its last item) hashed together
+    /// into one of this many columns, appended to the input of the actor and of the critic,
+    /// whose weights start at zero. A pair's own row of the first layer lets the networks
+    /// tell pairs apart that share an item, which a narrow layer over the items alone
+    /// cannot. Trained with a lazy Adam on the first layers (only the rows a minibatch's
+    /// inputs pick are stepped); the fused update only.
+    pub pair_buckets: usize,
+    /// The crossed feature's input value (1: a plain one-hot). Adam steps a weight by about
+    /// the learning rate whatever its gradient's size, so this multiplies how fast a pair's
+    /// own row changes the network's output: a pair seen a few times must count.
+    pub pair_scale: f32,
+    /// Buckets per pair (1 or more): with two, a pair's feature is the sum of two rows, which
+    /// two pairs share only if both of their buckets collide.
+    pub pair_hashes: usize,
     /// Initial log standard deviation of the Gaussian policy.
     pub init_log_std: f32,
     /// Bound the Gaussian mean with tanh to `[-1, 1]` (JSAE: the action-embedding space is
@@ -102,6 +117,9 @@ impl Default for PpoConfig {
             target_kl: None,
             hidden: vec![64, 64],
             wide_actor: false,
+            pair_buckets: 0,
+            pair_scale: 1.0,
+            pair_hashes: 1,
             init_log_std: 0.0,
             tanh_mean: false,
             reward_scaling: true,
@@ -156,9 +174,66 @@ impl PpoConfig {
         if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
             return Err("ppo.next_purchase_coef must be a finite number >= 0".into());
         }
+        if self.pair_buckets > 0 && (self.update != UpdatePath::Fused || self.normalize_obs) {
+            return Err(
+                "ppo.pair_buckets needs ppo.update = \"fused\" and ppo.normalize_obs = false \
+                 (the crossed feature is built for the host update's one-hot inputs); set \
+                 ppo.pair_buckets = 0 for the others"
+                    .into(),
+            );
+        }
+        if !(self.pair_scale > 0.0 && self.pair_scale.is_finite()) {
+            return Err(format!(
+                "ppo.pair_scale must be a positive number, got {}",
+                self.pair_scale
+            ));
+        }
+        if !(1..=8).contains(&self.pair_hashes) {
+            return Err(format!(
+                "ppo.pair_hashes must be between 1 and 8, got {}",
+                self.pair_hashes
+            ));
+        }
+        if self.pair_buckets > (1 << 24) {
+            return Err(format!(
+                "ppo.pair_buckets must be at most 16777216, got {}",
+                self.pair_buckets
+            ));
+        }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::settings::{Algo, EnvName, TrainConfig};
+
+    #[test]
+    fn the_pair_feature_is_the_recommenders_ppo_default_and_refused_elsewhere() {
+        let ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
+        assert_eq!(ppo.ppo.pair_buckets, 131_072);
+        assert_eq!(ppo.ppo.next_purchase_coef, 1.0);
+        ppo.validate().expect("the defaults are valid");
+        let jsae = TrainConfig::defaults(EnvName::Recommender, Algo::Jsae);
+        assert_eq!(jsae.ppo.pair_buckets, 0);
+        let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Ppo);
+        c.ppo.pair_buckets = 64;
+        let reason = c.validate().expect_err("not the recommender").to_string();
+        assert!(reason.contains("ppo.pair_buckets"), "{reason}");
+        for change in [
+            |c: &mut TrainConfig| c.ppo.update = UpdatePath::Burn,
+            |c: &mut TrainConfig| c.ppo.normalize_obs = true,
+            |c: &mut TrainConfig| c.ppo.pair_hashes = 0,
+            |c: &mut TrainConfig| c.ppo.pair_scale = f32::NAN,
+        ] {
+            let mut c = ppo.clone();
+            change(&mut c);
+            let reason = c.validate().expect_err("refused").to_string();
+            assert!(reason.contains("ppo.pair_"), "{reason}");
+        }
     }
 }

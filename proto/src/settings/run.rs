@@ -321,6 +321,17 @@ impl TrainConfig {
             embedding.state_dim = 16;
             embedding.action_dim = 8;
             embedding.pretrain_transitions = 100_000;
+            if algo == Algo::Ppo {
+                // Measured at 2M steps (README, "The pair feature"; seed 1001 unless said):
+                // the reward alone leaves PPO at the popular items (1.15 over 5 seeds); the
+                // next-purchase loss 3.71, with [128, 128] 4.02 (5 seeds), with lr 1e-3 4.17;
+                // a feature per (item before, last item) pair: 6.46 with 65,536 buckets,
+                // 6.80 with 131,072 (5 seeds: results/sweeps/recommender-pairs.toml).
+                ppo.next_purchase_coef = 1.0;
+                ppo.hidden = vec![128, 128];
+                ppo.lr = 1e-3;
+                ppo.pair_buckets = 131_072;
+            }
         }
         if env.is_mujoco() {
             // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
@@ -463,6 +474,14 @@ impl TrainConfig {
             return bad(
                 "ppo.next_purchase_coef is for --env recommender --algo ppo (a categorical \
                  policy over the items of the state)"
+                    .into(),
+            );
+        }
+        if self.ppo.pair_buckets > 0 && (self.env != EnvName::Recommender || self.algo != Algo::Ppo)
+        {
+            return bad(
+                "ppo.pair_buckets is for --env recommender --algo ppo (a pair of one-hot items \
+                 in the policy's input)"
                     .into(),
             );
         }
