@@ -43,6 +43,8 @@ pretrain_per_action = 0
 pretrain_epochs = 3
 [ppo]
 epochs = 4
+# the recommender's PPO pre-trains 100 passes over the logs by default: none in this check
+logged_pretrain_epochs = 0
 EOF
 chmod 644 "$JSAE_CONFIG_FILE"
 compose() { docker-compose -f "$root/deploy/docker-compose.yml" --project-directory "$root/deploy" "$@"; }
@@ -70,8 +72,8 @@ size=$(docker image inspect -f '{{.Size}}' "$JSAE_IMAGE")
 echo "image $JSAE_IMAGE: $((size / 1000000)) MB"
 
 step "2. train a small recommender run into the volume (one-off train service)"
-compose run --rm train train --env recommender --algo ppo --one-process --env-steps 4096 \
-    --eval-episodes 5 --quiet --out /runs/recommender >/dev/null
+compose run --rm train train --config /etc/jsae/config.toml --env recommender --algo ppo \
+    --one-process --env-steps 4096 --eval-episodes 5 --quiet --out /runs/recommender >/dev/null
 compose run --rm --entrypoint test train -f /runs/recommender/summary.json \
     || fail "the recommender run has no summary.json"
 

@@ -457,3 +457,49 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
     assert!(embedding_versions.len() >= 2, "{embedding_versions:?}");
     assert!(increasing(&embedding_versions), "{embedding_versions:?}");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_fresh_learner_pretrains_on_logged_purchases_before_its_first_snapshot() {
+    use jsae_proto::settings::SessionSource;
+    // the policy's outputs on a few inputs: the weights, whatever ids the record gives them
+    let outputs = |c: &jsae_proto::settings::TrainConfig, bytes: Option<Vec<u8>>| {
+        let mut l = jsae_learner::Learner::for_run(c);
+        if let Some(bytes) = bytes {
+            l.restore(&jsae_proto::PolicySnapshot { version: 0, bytes })
+                .expect("the checkpoint loads");
+        }
+        let d = l.policy().input_dim();
+        let x: Vec<f32> = (0..4 * d).map(|i| ((i * 7) % 5) as f32 / 4.0).collect();
+        l.policy().head_outputs(&x)
+    };
+    let first_snapshot = |pretrain: usize, name: &str| {
+        let mut c = config(EnvName::Recommender, Algo::Ppo, name);
+        let r = &mut c.environment.recommender;
+        r.source = SessionSource::Synthetic;
+        r.top_n = 50;
+        r.synthetic.items = 40;
+        r.synthetic.sessions = 500;
+        c.ppo.logged_pretrain_epochs = pretrain;
+        async move {
+            let fresh = outputs(&c, None);
+            let learner = start_learner(&c, None).await;
+            let out = RunDir::new(&c.out);
+            let mut first = None;
+            for _ in 0..600 {
+                first = jsae_learner::service::latest_checkpoint(&out);
+                if first.is_some() {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+            }
+            learner.stop().await.expect("stops cleanly");
+            let first = first.expect("the first snapshot was written");
+            assert_eq!(first.version, 0);
+            (fresh, outputs(&c, Some(first.bytes)))
+        }
+    };
+    let (fresh, served) = first_snapshot(0, "logged-off").await;
+    assert_eq!(fresh, served, "without pre-training: the fresh weights");
+    let (fresh, served) = first_snapshot(2, "logged-on").await;
+    assert_ne!(fresh, served, "pre-trained before the first snapshot");
+}

@@ -112,6 +112,11 @@ pub fn train_one_process(
         }
     }
 
+    if config.init_from.is_none()
+        && let Some(r) = learner.pretrain_for_run(config)?
+    {
+        progress.note(&r.to_string());
+    }
     let first = learner
         .snapshot()
         .map_err(jsae_learner::LearnerError::from)?;

@@ -29,6 +29,7 @@ pub use jsae_proto::settings::{PpoConfig, UpdatePath};
 pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
-    Ingested, LagStats, Learner, LearnerError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
+    Ingested, LagStats, Learner, LearnerError, PretrainReport, UpdateMetrics, UpdateReport,
+    clipped_surrogate_loss,
 };
 pub use record::{EvalStats, RunMeta, Summary};

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex, OnceLock, RwLock, Weak};
 use std::time::Duration;
 
+use jsae_proto::StateBatch;
 use jsae_proto::settings::{RecommenderConfig, SessionSource};
 
 use super::ngram::{Catalogue, NgramModel};
@@ -204,6 +205,43 @@ impl ModelHandle {
             .map_or_else(|p| Arc::clone(p.get_ref()), |m| Arc::clone(&m))
     }
 
+    /// The purchases the model is built from (the data without its held-out sessions, and
+    /// the store's), as the environment's steps: for every catalogue purchase after a
+    /// session's first, the state before it (the session's last `history` catalogue
+    /// purchases, "none" where there are fewer, as an episode starts) and the item bought.
+    /// Purchases outside the catalogue are passed over, as the model passes over them.
+    pub fn logged_steps(&self, history: usize) -> (StateBatch, Vec<u32>) {
+        let model = self.current();
+        let catalogue = model.catalogue();
+        let r = self.refresh.lock().unwrap_or_else(|p| p.into_inner());
+        let (mut states, mut next) = (Vec::new(), Vec::new());
+        let mut window = vec![catalogue.none(); history.max(1)];
+        for s in self.base.iter().chain(&r.stored) {
+            window.fill(catalogue.none());
+            let mut first = true;
+            for k in s
+                .purchases
+                .iter()
+                .filter_map(|p| catalogue.slot(&p.item_id))
+            {
+                if !first {
+                    states.extend_from_slice(&window);
+                    next.push(k);
+                }
+                first = false;
+                window.rotate_left(1);
+                if let Some(last) = window.last_mut() {
+                    *last = k;
+                }
+            }
+        }
+        let states = StateBatch::Categorical {
+            factors: window.len(),
+            data: states,
+        };
+        (states, next)
+    }
+
     /// Reads sessions added to the store since the last call and, if there are any,
     /// rebuilds the model with them (new items take free slots). Returns how many were new.
     pub fn refresh(&self) -> Result<usize, RecsysError> {
@@ -371,6 +409,63 @@ mod tests {
         let again = ModelHandle::load(&config).expect("reloads");
         assert_eq!(again.current().catalogue().slot(&a), Some(sa));
         assert_eq!(again.current().catalogue().slot("fresh-item"), Some(fresh));
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn logged_steps_are_every_purchase_after_the_first_with_the_state_before_it() {
+        let dir = std::env::temp_dir().join(format!("jsae-logged-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let config = RecommenderConfig {
+            source: SessionSource::Synthetic,
+            top_n: 25,
+            holdout: 0.2,
+            store_dir: dir.clone(),
+            synthetic: SyntheticConfig {
+                items: 25,
+                sessions: 300,
+                ..SyntheticConfig::default()
+            },
+            ..RecommenderConfig::default()
+        };
+        let base = ModelHandle::load(&config).expect("loads");
+        let catalogue = base.current().catalogue().clone();
+        let (a, b, c) = (
+            catalogue.id(0).expect("filled").to_owned(),
+            catalogue.id(1).expect("filled").to_owned(),
+            catalogue.id(2).expect("filled").to_owned(),
+        );
+        // a stored session with an item outside the (full) catalogue, which is passed over
+        let mut store = SessionStore::open(&dir).expect("store");
+        store
+            .append(&[session("stored", &[&a, &b, "not-an-item", &c])])
+            .expect("appends");
+        drop(store);
+        let handle = ModelHandle::load(&config).expect("reloads");
+        let (states, next) = handle.logged_steps(2);
+        let StateBatch::Categorical { factors: 2, data } = &states else {
+            panic!("two factors: {states:?}")
+        };
+        let none = catalogue.none();
+        let n = next.len();
+        assert_eq!(&data[2 * (n - 2)..], &[none, 0, 0, 1]);
+        assert_eq!(&next[n - 2..], &[1, 2]);
+        // the training sessions' purchases after their first, the held-out ones never
+        let (train, held) = split_sessions(load_sessions(&config).expect("generated"), &config);
+        assert!(!held.is_empty());
+        let expected: usize = train
+            .iter()
+            .map(|s| {
+                let bought = s.purchases.iter();
+                let kept = bought.filter(|p| catalogue.slot(&p.item_id).is_some());
+                kept.count().saturating_sub(1)
+            })
+            .sum();
+        assert_eq!(n, expected + 2);
+        // every state is a context the model counted
+        let contexts: std::collections::HashSet<(u32, u32)> =
+            data.chunks_exact(2).map(|w| (w[0], w[1])).collect();
+        assert_eq!(contexts.len(), handle.current().contexts());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

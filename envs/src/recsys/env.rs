@@ -52,6 +52,13 @@ impl RecommenderEnv {
         &self.model
     }
 
+    /// The logged purchases the model is built from, as this environment's states and the
+    /// item bought in each ([`ModelHandle::logged_steps`]): what a policy can learn from
+    /// before it plays.
+    pub fn logged_steps(&self) -> (StateBatch, Vec<u32>) {
+        self.handle.logged_steps(self.history.len())
+    }
+
     /// The state: the last purchases, oldest first.
     pub fn history(&self) -> &[u32] {
         &self.history

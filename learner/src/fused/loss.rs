@@ -144,6 +144,7 @@ impl HostPolicy {
             pg,
             value,
             entropy,
+            next_purchase: total.next_nll / bf,
         }
     }
 

@@ -153,6 +153,9 @@ pub struct LossParts {
     pub value: f32,
     /// Mean entropy.
     pub entropy: f32,
+    /// The next-purchase cross-entropy, unweighted (summed over the samples with a next
+    /// purchase, divided by all; 0 when the loss is off).
+    pub next_purchase: f32,
 }
 
 /// Samples per part below which a minibatch is not split between threads: at PPO's usual

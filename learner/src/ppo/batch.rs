@@ -315,7 +315,7 @@ impl NetworkInput {
     /// policy's statistics if it normalises, and as their non-zero entries where at most an
     /// eighth of them are non-zero; with a pair feature (one-hot rows, no normalisation) as
     /// their entries and their crossed pair feature ([`SparseRows::crossed`]).
-    fn new(
+    pub(super) fn new(
         x: &[f32],
         d: usize,
         stats: Option<&(Vec<f32>, Vec<f32>)>,
@@ -332,6 +332,21 @@ impl NetworkInput {
             return Self::Sparse(SparseRows::crossed(view, cross));
         }
         SparseRows::from_dense(view).map_or_else(|| Self::Dense(view.to_owned()), Self::Sparse)
+    }
+
+    /// Appends `other`'s rows (the same kind and width).
+    ///
+    /// # Panics
+    /// When one is dense and the other sparse.
+    pub(super) fn append(&mut self, other: Self) {
+        match (self, other) {
+            (Self::Dense(x), Self::Dense(o)) => {
+                x.append(ndarray::Axis(0), o.view())
+                    .expect("rows of one width");
+            }
+            (Self::Sparse(x), Self::Sparse(o)) => x.append(&o),
+            _ => panic!("dense and sparse inputs appended together"),
+        }
     }
 
     /// Rows `rows` of these inputs.

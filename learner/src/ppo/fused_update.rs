@@ -52,7 +52,7 @@ impl Learner {
 
 /// The update's epochs over `batch` (network inputs `x`), each in the minibatch order
 /// `shuffled` gives, stopping early when the KL target is passed.
-fn epochs(
+pub(super) fn epochs(
     config: &crate::PpoConfig,
     batch: &Batch,
     x: &NetworkInput,
@@ -107,6 +107,7 @@ fn epochs(
                 loss.value,
                 loss.entropy,
             );
+            stats.add_next_purchase(loss.next_purchase);
         }
         epochs += 1;
         last = stats;

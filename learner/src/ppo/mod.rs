@@ -15,6 +15,7 @@
 
 mod batch;
 mod fused_update;
+mod pretrain;
 mod report;
 #[cfg(test)]
 mod tests;
@@ -34,6 +35,7 @@ use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
 use batch::{Batch, BatchBuffers};
 use fused_update::FusedState;
+pub use pretrain::PretrainReport;
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use update::clipped_surrogate_loss;
 

@@ -13,6 +13,9 @@ pub enum LearnerError {
     /// Weights could not be serialised.
     #[error(transparent)]
     Record(#[from] RecordError),
+    /// Pre-training on logged purchases was asked of what it does not fit.
+    #[error("pre-training on logged purchases: {0}")]
+    Pretrain(String),
 }
 
 /// What happened to an ingested fragment.
@@ -57,6 +60,8 @@ pub struct UpdateMetrics {
     pub value_loss: f64,
     /// Entropy (last epoch mean).
     pub entropy: f64,
+    /// The next-purchase cross-entropy (last epoch mean; fused update only, 0 when off).
+    pub next_purchase_loss: f64,
     /// Approximate KL between behaviour and updated policy (last epoch mean).
     pub approx_kl: f64,
     /// Fraction of samples whose ratio was clipped (last epoch mean).

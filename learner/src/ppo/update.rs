@@ -155,6 +155,7 @@ pub(super) struct EpochStats {
     pg: f64,
     v: f64,
     ent: f64,
+    next: f64,
     kl: f64,
     clipped: f64,
     samples: f64,
@@ -181,6 +182,11 @@ impl EpochStats {
         sum / self.minibatches.max(1.0)
     }
 
+    /// Adds one minibatch's next-purchase cross-entropy (call after [`Self::add`]).
+    pub(super) fn add_next_purchase(&mut self, nll: f32) {
+        self.next += f64::from(nll);
+    }
+
     pub(super) fn approx_kl(&self) -> f64 {
         self.kl / self.samples.max(1.0)
     }
@@ -195,6 +201,7 @@ impl EpochStats {
             policy_loss: self.mean(self.pg),
             value_loss: self.mean(self.v),
             entropy: self.mean(self.ent),
+            next_purchase_loss: self.mean(self.next),
             approx_kl: self.approx_kl(),
             clip_frac: self.clip_frac(),
             grad_norm,

@@ -12,6 +12,9 @@
 //! under the old one (its `x` and `e` mean something else now); both count as
 //! `dropped_embedding`. A restarted learner resumes from `checkpoints/policy-latest.bpk` with
 //! its version, so actors that kept running stay valid.
+//! A fresh run (neither resumed nor warm-started) first pre-trains on logged purchases where
+//! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
+//! actors wait for.
 
 mod grpc;
 mod training;
@@ -67,9 +70,11 @@ pub async fn serve(
         }
         None => false,
     };
+    let mut fresh = !resumed;
     if !resumed && let Some(source) = config.init_source()? {
         learner.warm_start(&source.policy)?;
         tracing::info!("policy warm-started from {}", source.dir.display());
+        fresh = false;
     }
     let metrics = if resumed {
         CsvMetrics::append(&out.metrics_csv(), &UPDATE_COLUMNS)?
@@ -113,6 +118,7 @@ pub async fn serve(
         version,
         embedding: None,
         started: Instant::now(),
+        pretrain: fresh,
     };
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::Builder::new()

@@ -32,6 +32,9 @@ pub(super) struct LearnerLoop {
     pub(super) version: Arc<AtomicU64>,
     pub(super) embedding: Option<EmbeddingSnapshot>,
     pub(super) started: Instant,
+    /// Pre-train on logged purchases (where the settings ask) before the first snapshot: a
+    /// fresh run, neither resumed nor warm-started. The actors wait for that snapshot.
+    pub(super) pretrain: bool,
 }
 
 impl LearnerLoop {
@@ -46,6 +49,11 @@ impl LearnerLoop {
     }
 
     pub(super) fn run(mut self, mut queue: mpsc::Receiver<Input>) -> anyhow::Result<Summary> {
+        if self.pretrain
+            && let Some(report) = self.learner.pretrain_for_run(&self.config)?
+        {
+            tracing::info!("{report}");
+        }
         let first = self.learner.snapshot()?;
         self.publish_snapshot(first)?;
         let request = pb::EvalRequest {

@@ -147,6 +147,24 @@ impl SparseRows {
         (&self.index[a..b], &self.value[a..b])
     }
 
+    /// Appends `other`'s rows (of the same width).
+    ///
+    /// # Panics
+    /// When the widths differ.
+    pub fn append(&mut self, other: &Self) {
+        assert!(
+            self.nrows() == 0 || self.cols == other.cols,
+            "rows of {} columns appended to rows of {}",
+            other.cols,
+            self.cols
+        );
+        self.cols = other.cols;
+        let base = self.index.len();
+        self.index.extend_from_slice(&other.index);
+        self.value.extend_from_slice(&other.value);
+        self.start.extend(other.start[1..].iter().map(|s| s + base));
+    }
+
     /// Replaces these rows with rows `rows` of `from`, in that order (buffers reused).
     pub fn gather(&mut self, from: &Self, rows: &[usize]) {
         self.cols = from.cols;

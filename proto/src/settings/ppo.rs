@@ -40,6 +40,15 @@ pub struct PpoConfig {
     /// softmax against the item bought next, read from the next state, added to the PPO loss
     /// (as in self-supervised RL for recommendation, Xin et al. 2020). 0: off.
     pub next_purchase_coef: f64,
+    /// Passes of pre-training on logged purchases before the policy plays (0: none; the
+    /// recommender's categorical policy, fused update): the next-purchase cross-entropy
+    /// alone, over every step of the sessions the simulator's model is built from (never the
+    /// held-out ones), at `logged_pretrain_lr`. A shop has its purchase logs before it has
+    /// a policy.
+    pub logged_pretrain_epochs: usize,
+    /// Adam's learning rate at the start of `logged_pretrain_epochs`, annealed linearly to 0
+    /// over them.
+    pub logged_pretrain_lr: f64,
     /// Global gradient-norm limit.
     pub max_grad_norm: f32,
     /// Normalise advantages per minibatch.
@@ -112,6 +121,8 @@ impl Default for PpoConfig {
             ent_coef: 0.0,
             entropy_log_std_max: None,
             next_purchase_coef: 0.0,
+            logged_pretrain_epochs: 0,
+            logged_pretrain_lr: 1e-3,
             max_grad_norm: 0.5,
             norm_adv: true,
             target_kl: None,
@@ -155,8 +166,13 @@ impl PpoConfig {
                 "ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into(),
             );
         }
-        if self.lr.is_nan() || self.lr <= 0.0 || self.lr.is_infinite() {
-            return Err(format!("ppo.lr must be positive, got {}", self.lr));
+        for (key, lr) in [
+            ("lr", self.lr),
+            ("logged_pretrain_lr", self.logged_pretrain_lr),
+        ] {
+            if !(lr > 0.0 && lr.is_finite()) {
+                return Err(format!("ppo.{key} must be positive, got {lr}"));
+            }
         }
         if !(0.0..=1.0).contains(&self.gamma) || !(0.0..=1.0).contains(&self.gae_lambda) {
             return Err("ppo.gamma and ppo.gae_lambda must be in [0, 1]".into());
@@ -200,6 +216,13 @@ impl PpoConfig {
                 self.pair_buckets
             ));
         }
+        if self.logged_pretrain_epochs > 0 && self.update != UpdatePath::Fused {
+            return Err(
+                "ppo.logged_pretrain_epochs needs ppo.update = \"fused\"; set \
+                 ppo.logged_pretrain_epochs = 0 for the burn update"
+                    .into(),
+            );
+        }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }
@@ -213,10 +236,11 @@ mod tests {
     use crate::settings::{Algo, EnvName, TrainConfig};
 
     #[test]
-    fn the_pair_feature_is_the_recommenders_ppo_default_and_refused_elsewhere() {
+    fn the_pair_feature_and_logged_pretraining_are_the_recommenders_ppo_defaults() {
         let ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
         assert_eq!(ppo.ppo.pair_buckets, 131_072);
-        assert_eq!(ppo.ppo.next_purchase_coef, 1.0);
+        assert_eq!(ppo.ppo.logged_pretrain_epochs, 100);
+        assert_eq!(ppo.ppo.gamma, 0.0);
         ppo.validate().expect("the defaults are valid");
         let jsae = TrainConfig::defaults(EnvName::Recommender, Algo::Jsae);
         assert_eq!(jsae.ppo.pair_buckets, 0);
@@ -234,6 +258,32 @@ mod tests {
             change(&mut c);
             let reason = c.validate().expect_err("refused").to_string();
             assert!(reason.contains("ppo.pair_"), "{reason}");
+        }
+    }
+
+    #[test]
+    fn logged_pretraining_is_for_the_recommenders_ppo_on_the_fused_update() {
+        let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
+        ppo.ppo.logged_pretrain_epochs = 5;
+        ppo.validate().expect("valid");
+        for (env, algo) in [
+            (EnvName::Recommender, Algo::Jsae),
+            (EnvName::Slotmachine, Algo::Ppo),
+        ] {
+            let mut c = TrainConfig::defaults(env, algo);
+            c.ppo.logged_pretrain_epochs = 5;
+            let reason = c.validate().expect_err("refused").to_string();
+            assert!(reason.contains("ppo.logged_pretrain_epochs"), "{reason}");
+        }
+        let mut burn = ppo.clone();
+        (burn.ppo.update, burn.ppo.pair_buckets) = (UpdatePath::Burn, 0);
+        let reason = burn.validate().expect_err("the burn update").to_string();
+        assert!(reason.contains("ppo.logged_pretrain_epochs"), "{reason}");
+        for bad in [0.0, -1e-3, f64::NAN] {
+            let mut c = ppo.clone();
+            c.ppo.logged_pretrain_lr = bad;
+            let reason = c.validate().expect_err("not positive").to_string();
+            assert!(reason.contains("ppo.logged_pretrain_lr"), "{reason}");
         }
     }
 }
