@@ -25,7 +25,9 @@ profile="${PROFILE:-release}"
 bindir="$root/target/$([[ $profile == release ]] && echo release || echo debug)"
 export COMPOSE_PROJECT_NAME="jsaetest$$"
 export JSAE_IMAGE="jsae:latest"
-export JSAE_ENV=gridworld-discrete JSAE_ALGO=jsae JSAE_SEED=1 JSAE_ENV_STEPS=${JSAE_ENV_STEPS:-600000}
+# 2M steps so that the kill (4) and the restart (5) fall mid-run: 600k ended about 30 s after
+# the stack came up, before the restart
+export JSAE_ENV=gridworld-discrete JSAE_ALGO=jsae JSAE_SEED=1 JSAE_ENV_STEPS=${JSAE_ENV_STEPS:-2000000}
 export JSAE_RUN=gridworld JSAE_RECOMMENDER_RUN=recommender RUST_LOG=info
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 export JSAE_EMBEDDER_PORT=$(free_port) JSAE_LEARNER_PORT=$(free_port) JSAE_RECOMMENDER_PORT=$(free_port)
@@ -135,7 +137,7 @@ echo "learner resumed from its checkpoint; metrics rows $rows_at_restart -> $(me
 
 step "6. the run completes; summary.json from the volume"
 learner="$(compose ps -q learner)"
-for _ in $(seq 600); do
+for _ in $(seq 1800); do
     [[ "$(docker inspect -f '{{.State.Status}}' "$learner")" == exited ]] && break
     sleep 0.5
 done
