@@ -45,8 +45,6 @@ pretrain_per_action = 0
 pretrain_epochs = 3
 [ppo]
 epochs = 4
-# the recommender's PPO pre-trains 100 passes over the logs by default: none in this check
-logged_pretrain_epochs = 0
 EOF
 chmod 644 "$JSAE_CONFIG_FILE"
 compose() { docker-compose -f "$root/deploy/docker-compose.yml" --project-directory "$root/deploy" "$@"; }

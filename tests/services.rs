@@ -459,9 +459,10 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_fresh_learner_pretrains_on_logged_purchases_before_its_first_snapshot() {
+async fn a_fresh_learner_learns_from_logged_purchases_before_its_first_snapshot() {
     use jsae_proto::settings::SessionSource;
     // the policy's outputs on a few inputs: the weights, whatever ids the record gives them
+    // and whether a count prior came with them
     let outputs = |c: &jsae_proto::settings::TrainConfig, bytes: Option<Vec<u8>>| {
         let mut l = jsae_learner::Learner::for_run(c);
         if let Some(bytes) = bytes {
@@ -470,9 +471,9 @@ async fn a_fresh_learner_pretrains_on_logged_purchases_before_its_first_snapshot
         }
         let d = l.policy().input_dim();
         let x: Vec<f32> = (0..4 * d).map(|i| ((i * 7) % 5) as f32 / 4.0).collect();
-        l.policy().head_outputs(&x)
+        (l.policy().head_outputs(&x), l.policy().prior().is_some())
     };
-    let first_snapshot = |pretrain: usize, name: &str| {
+    let first_snapshot = |pretrain: usize, prior: bool, name: &str| {
         let mut c = config(EnvName::Recommender, Algo::Ppo, name);
         let r = &mut c.environment.recommender;
         r.source = SessionSource::Synthetic;
@@ -480,6 +481,7 @@ async fn a_fresh_learner_pretrains_on_logged_purchases_before_its_first_snapshot
         r.synthetic.items = 40;
         r.synthetic.sessions = 500;
         c.ppo.logged_pretrain_epochs = pretrain;
+        c.ppo.logged_prior = prior;
         async move {
             let fresh = outputs(&c, None);
             let learner = start_learner(&c, None).await;
@@ -498,8 +500,15 @@ async fn a_fresh_learner_pretrains_on_logged_purchases_before_its_first_snapshot
             (fresh, outputs(&c, Some(first.bytes)))
         }
     };
-    let (fresh, served) = first_snapshot(0, "logged-off").await;
+    let (fresh, served) = first_snapshot(0, false, "logged-off").await;
     assert_eq!(fresh, served, "without pre-training: the fresh weights");
-    let (fresh, served) = first_snapshot(2, "logged-on").await;
-    assert_ne!(fresh, served, "pre-trained before the first snapshot");
+    let (fresh, served) = first_snapshot(2, false, "logged-on").await;
+    assert_ne!(fresh.0, served.0, "pre-trained before the first snapshot");
+    assert!(!served.1);
+    let (fresh, served) = first_snapshot(0, true, "logged-prior").await;
+    assert!(
+        !fresh.1 && served.1,
+        "the counted prior travels with the first snapshot"
+    );
+    assert_ne!(fresh.0, served.0);
 }

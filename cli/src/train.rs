@@ -112,10 +112,11 @@ pub fn train_one_process(
         }
     }
 
-    if config.init_from.is_none()
-        && let Some(r) = learner.pretrain_for_run(config)?
-    {
-        progress.note(&r.to_string());
+    if config.init_from.is_none() {
+        let logged = jsae_recommender::logged_purchases(config).map_err(TrainError::Service)?;
+        for note in learner.learn_from_logs(logged.as_ref())? {
+            progress.note(&note);
+        }
     }
     let first = learner
         .snapshot()

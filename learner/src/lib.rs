@@ -21,6 +21,7 @@ pub mod metrics;
 pub mod normalise;
 mod policy;
 mod ppo;
+pub mod prior;
 mod record;
 pub mod service;
 pub mod synthetic;
@@ -29,7 +30,7 @@ pub use jsae_proto::settings::{PpoConfig, UpdatePath};
 pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
-    Ingested, LagStats, Learner, LearnerError, PretrainReport, UpdateMetrics, UpdateReport,
-    clipped_surrogate_loss,
+    Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport, UpdateMetrics,
+    UpdateReport, clipped_surrogate_loss,
 };
 pub use record::{EvalStats, RunMeta, Summary};

@@ -18,6 +18,7 @@ use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
 use crate::PpoConfig;
+use crate::prior::CountPrior;
 use jsae_nn::ObsNorm;
 
 pub(crate) const LOG_STD_MIN: f32 = -5.0;
@@ -98,6 +99,11 @@ pub struct Policy {
     /// weight rows instead of a dense product over every bucket); copied from `net` at the
     /// first use after the weights change.
     host_actor: OnceLock<Arc<HostMlp>>,
+    /// Whether the logits add a prior counted from logged purchases (`ppo.logged_prior`):
+    /// the bytes then carry it after the weights.
+    uses_prior: bool,
+    /// That prior, once counted (or read with the weights).
+    prior: Option<Arc<CountPrior>>,
     device: Device,
 }
 
@@ -150,8 +156,36 @@ impl Policy {
                 value: config.pair_scale,
             }),
             host_actor: OnceLock::new(),
+            uses_prior: config.logged_prior,
+            prior: None,
             device: device.clone(),
         }
+    }
+
+    /// The prior the logits add ([`CountPrior`]), once it is set.
+    pub fn prior(&self) -> Option<&Arc<CountPrior>> {
+        self.prior.as_ref()
+    }
+
+    /// Whether the settings ask for a prior (`ppo.logged_prior`).
+    pub fn uses_prior(&self) -> bool {
+        self.uses_prior
+    }
+
+    /// Sets the prior the logits add.
+    ///
+    /// # Panics
+    /// When the settings ask for none, or it is not over this policy's actions.
+    pub fn set_prior(&mut self, prior: CountPrior) {
+        assert!(self.uses_prior, "ppo.logged_prior is off");
+        assert_eq!(
+            Some(prior.actions()),
+            match self.head {
+                PolicyHead::Categorical { n } => Some(n),
+                PolicyHead::Gaussian { .. } => None,
+            }
+        );
+        self.prior = Some(Arc::new(prior));
     }
 
     /// The crossed pair feature after the input ([`jsae_nn::SparseRows::crossed`]), if any.
@@ -224,14 +258,39 @@ impl Policy {
         }
     }
 
-    /// Weights as bytes.
+    /// Weights as bytes; with `ppo.logged_prior`, framed with the prior's counts
+    /// ([`crate::prior::frame`]).
     pub fn to_bytes(&self) -> Result<Vec<u8>, RecordError> {
-        nn::into_bytes(&self.net)
+        let record = nn::into_bytes(&self.net)?;
+        Ok(if self.uses_prior {
+            crate::prior::frame(&record, self.prior.as_deref())
+        } else {
+            record
+        })
     }
 
-    /// Loads weights from bytes (structure checked).
+    /// Loads weights (and the prior, where the settings ask for one) from
+    /// [`Self::to_bytes`]'s bytes (structure checked).
     pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
-        self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        let (record, prior) = if self.uses_prior {
+            crate::prior::unframe(bytes).map_err(|e| RecordError(e.to_string()))?
+        } else {
+            (bytes, &[][..])
+        };
+        let prior = match (prior.is_empty(), self.head) {
+            (true, _) => None,
+            (false, PolicyHead::Categorical { n }) => Some(Arc::new(
+                CountPrior::from_bytes(prior, self.input, n)
+                    .map_err(|e| RecordError(e.to_string()))?,
+            )),
+            (false, PolicyHead::Gaussian { .. }) => {
+                return Err(RecordError("a count prior for a Gaussian policy".into()));
+            }
+        };
+        self.net = nn::from_bytes(self.net.clone(), record)?;
+        if prior.is_some() {
+            self.prior = prior;
+        }
         self.host_actor = OnceLock::new();
         Ok(())
     }
@@ -337,15 +396,20 @@ impl Policy {
         if batch == 0 {
             return Vec::new();
         }
-        if let Some(cross) = self.pair {
-            return self.crossed_head_outputs(&x[..batch * self.input], cross);
+        let x = &x[..batch * self.input];
+        let mut out = match self.pair {
+            Some(cross) => self.crossed_head_outputs(x, cross),
+            None => {
+                nn::to_vec(self.actor_out(nn::tensor2(x.to_vec(), batch, self.input, &self.device)))
+            }
+        };
+        if let Some(prior) = &self.prior {
+            let (n, mut cols) = (prior.actions(), Vec::new());
+            for (row, logits) in x.chunks_exact(self.input).zip(out.chunks_exact_mut(n)) {
+                prior.add_to_dense(row, logits, &mut cols);
+            }
         }
-        nn::to_vec(self.actor_out(nn::tensor2(
-            x[..batch * self.input].to_vec(),
-            batch,
-            self.input,
-            &self.device,
-        )))
+        out
     }
 
     /// [`Self::head_outputs`] of one-hot rows `x` with their crossed pair feature, on the host.

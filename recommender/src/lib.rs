@@ -8,7 +8,8 @@
 //! PPO's most likely ones, the store), `grpc` (the handlers and `serve`), `sources` (weights
 //! followed from a live run or loaded from a run directory's checkpoints), `cli` (`jsae
 //! recommender`'s flags and main), `baseline` (the reference policies: popular, most likely next item; with random, their returns),
-//! `offline` (hit rate@k and NDCG@k on held-out sessions).
+//! `offline` (hit rate@k and NDCG@k on held-out sessions), `logs` (the logged purchases a
+//! fresh learner's policy learns from).
 //! The environment, data and session store are `jsae_envs::recsys`.
 
 #![forbid(unsafe_code)]
@@ -16,12 +17,14 @@
 pub mod baseline;
 pub mod cli;
 pub mod grpc;
+pub mod logs;
 pub mod offline;
 pub mod scoring;
 pub mod sources;
 
 pub use cli::{RecommenderArgs, main};
 pub use grpc::{RecommenderService, serve};
+pub use logs::logged_purchases;
 pub use scoring::{
     MAX_ERRORS_LISTED, MAX_HISTORY, MAX_SESSIONS_PER_CALL, Recommendation, Recommender,
 };

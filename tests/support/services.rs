@@ -93,6 +93,9 @@ pub async fn start_learner_on(
     let options = LearnerOptions {
         out: config.out.clone(),
         embedder,
+        logged: jsae_recommender::logged_purchases(config)
+            .expect("the logged purchases")
+            .map(std::sync::Arc::new),
     };
     let handle = tokio::spawn(jsae_learner::service::serve(
         config.clone(),

@@ -146,6 +146,7 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
     let options = LearnerOptions {
         out: config.out.clone(),
         embedder: None,
+        logged: None,
     };
     let server = tokio::spawn(jsae_learner::service::serve(
         config.clone(),

@@ -8,6 +8,7 @@ use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
 use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
 use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
+use crate::prior::CountPrior;
 
 /// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r = exp(log_ratio)`,
 /// and its derivative with respect to the log-probability (a tie, or a NaN, takes the
@@ -210,6 +211,9 @@ impl HostPolicy {
         let (out, d_out) = work.work.output_mut_and_grad();
         let width = out.ncols().max(1);
         let out = out.as_slice_mut().unwrap_or(&mut []);
+        if let Some(prior) = &self.prior {
+            add_prior(prior, mb.x, width, out);
+        }
         let d_out = d_out.as_slice_mut().unwrap_or(&mut []);
         match self.head {
             PolicyHead::Gaussian { dim } => {
@@ -313,5 +317,19 @@ impl HostPolicy {
             .critic
             .backward_with(mb.x, work, grads, OutputBias::InPass, input_weights);
         v_loss
+    }
+}
+
+/// Adds `prior`'s logits for each row of `x` to its row of `out` (`[rows, width]`).
+fn add_prior(prior: &CountPrior, x: HostInput<'_>, width: usize, out: &mut [f32]) {
+    let mut cols = Vec::new();
+    for (r, logits) in out.chunks_exact_mut(width).enumerate() {
+        match x {
+            HostInput::Sparse(x) => prior.add_to(x.row(r).0, logits),
+            HostInput::Dense(x) => match x.row(r).to_slice() {
+                Some(row) => prior.add_to_dense(row, logits, &mut cols),
+                None => prior.add_to_dense(&x.row(r).to_vec(), logits, &mut cols),
+            },
+        }
     }
 }

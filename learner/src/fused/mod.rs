@@ -102,6 +102,8 @@ pub struct HostPolicy {
     pub tanh_mean: bool,
     /// The log-std up to which the entropy bonus counts.
     pub entropy_log_std_max: f32,
+    /// The prior the categorical logits add (`ppo.logged_prior`), not trained.
+    pub prior: Option<std::sync::Arc<crate::prior::CountPrior>>,
 }
 
 /// One minibatch, or one run of a minibatch's rows ([`minibatch_parts`]), as `ppo::update`
@@ -249,6 +251,7 @@ impl HostPolicy {
             head: policy.head(),
             tanh_mean: policy.tanh_mean(),
             entropy_log_std_max: policy.entropy_log_std_max(),
+            prior: policy.prior().cloned(),
         }
     }
 

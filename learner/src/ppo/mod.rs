@@ -35,7 +35,7 @@ use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
 use batch::{Batch, BatchBuffers};
 use fused_update::FusedState;
-pub use pretrain::PretrainReport;
+pub use pretrain::{LoggedPurchases, PretrainReport};
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use update::clipped_surrogate_loss;
 

@@ -1,4 +1,5 @@
-//! Pre-training the recommender's categorical policy on logged purchases before it plays
+//! Readying the recommender's categorical policy from logged purchases before it plays: the
+//! count prior its logits add (`ppo.logged_prior`, [`crate::prior`]) and pre-training
 //! (`ppo.logged_pretrain_epochs`): the next-purchase cross-entropy alone over the steps of
 //! the sessions the simulator's model is built from (the held-out ones never), through the
 //! PPO update's own minibatches, clipping and Adam on the fused path. With no advantages and
@@ -7,9 +8,6 @@
 
 use std::time::Instant;
 
-use jsae_envs::Env;
-use jsae_envs::recsys::RecommenderEnv;
-use jsae_proto::settings::{EnvName, TrainConfig};
 use jsae_proto::{ActionBatch, StateBatch, StateSpace};
 use ndarray::Array2;
 use rand::seq::SliceRandom;
@@ -19,6 +17,20 @@ use super::fused_update::{FusedState, epochs};
 use super::{Learner, LearnerError};
 use crate::fused::HostPolicy;
 use crate::policy::PolicyHead;
+use crate::prior::CountPrior;
+
+/// Logged purchases a fresh policy can learn from before it plays (the recommender's
+/// sessions without the held-out ones, as the environment reads them; the caller, which
+/// knows the data, supplies them).
+#[derive(Debug, Clone)]
+pub struct LoggedPurchases {
+    /// The state before each purchase, as the actors encode states.
+    pub states: StateBatch,
+    /// Their space.
+    pub space: StateSpace,
+    /// The item bought after each state.
+    pub next: Vec<u32>,
+}
 
 /// Logged steps turned into network inputs at a time (their dense one-hots are transient).
 const CHUNK: usize = 4096;
@@ -50,24 +62,80 @@ impl std::fmt::Display for PretrainReport {
 }
 
 impl Learner {
-    /// Pre-trains on the run's logged purchases when `ppo.logged_pretrain_epochs` asks for
-    /// it (the recommender's sessions without the held-out ones, as the environment reads
-    /// them); None when it does not.
+    /// Whether the settings ask for logged purchases (`ppo.logged_prior`,
+    /// `ppo.logged_pretrain_epochs`).
+    pub fn wants_logs(&self) -> bool {
+        self.config.logged_prior || self.config.logged_pretrain_epochs > 0
+    }
+
+    /// Readies a fresh policy from `logged` as the settings ask: counts the prior its logits
+    /// add, then pre-trains; a line for each, to report.
     ///
     /// # Errors
-    /// When the data cannot be read, or as [`Self::pretrain_next_purchase`].
-    pub fn pretrain_for_run(
+    /// When the settings ask and there are no logs, or as [`Self::count_prior`] and
+    /// [`Self::pretrain_next_purchase`].
+    pub fn learn_from_logs(
         &mut self,
-        config: &TrainConfig,
-    ) -> Result<Option<PretrainReport>, LearnerError> {
-        if self.config.logged_pretrain_epochs == 0 || config.env != EnvName::Recommender {
-            return Ok(None);
+        logged: Option<&LoggedPurchases>,
+    ) -> Result<Vec<String>, LearnerError> {
+        if !self.wants_logs() {
+            return Ok(Vec::new());
         }
-        let env = RecommenderEnv::new(&config.environment)
-            .map_err(|e| LearnerError::Pretrain(e.to_string()))?;
-        let (states, next) = env.logged_steps();
-        self.pretrain_next_purchase(&states, env.state_space(), &next)
-            .map(Some)
+        let logged = logged.ok_or_else(|| {
+            LearnerError::Pretrain(
+                "ppo.logged_prior and ppo.logged_pretrain_epochs need logged purchases (the \
+                 recommender's data)"
+                    .into(),
+            )
+        })?;
+        let mut notes = Vec::new();
+        if self.config.logged_prior {
+            let contexts = self.count_prior(&logged.states, &logged.space, &logged.next)?;
+            notes.push(format!(
+                "policy prior counted from {} logged purchases ({contexts} item pairs)",
+                logged.next.len()
+            ));
+        }
+        if self.config.logged_pretrain_epochs > 0 {
+            let r = self.pretrain_next_purchase(&logged.states, &logged.space, &logged.next)?;
+            notes.push(r.to_string());
+        }
+        Ok(notes)
+    }
+
+    /// Counts the prior the policy's logits add from `states` (of `space`) and the item
+    /// bought after each; returns how many item pairs it holds.
+    ///
+    /// # Errors
+    /// As [`Self::pretrain_next_purchase`] for inputs that do not fit the policy.
+    pub fn count_prior(
+        &mut self,
+        states: &StateBatch,
+        space: &StateSpace,
+        next: &[u32],
+    ) -> Result<usize, LearnerError> {
+        if !self.config.logged_prior {
+            return Err(LearnerError::Pretrain("ppo.logged_prior is off".into()));
+        }
+        let n = self.check_logged(states, space, next)?;
+        let x_dim = space.feature_len();
+        let mut rows: Vec<(Vec<u32>, u32)> = Vec::with_capacity(next.len());
+        let (mut chunk, mut dense) = (StateBatch::empty(space), Vec::new());
+        for start in (0..next.len()).step_by(CHUNK) {
+            chunk.clear();
+            for i in start..(start + CHUNK).min(next.len()) {
+                chunk.push_row_of(states, i);
+            }
+            chunk.write_features(space, &mut dense);
+            for (row, &k) in dense.chunks_exact(x_dim).zip(&next[start..]) {
+                let cols = row.iter().enumerate().filter(|(_, v)| **v != 0.0);
+                rows.push((cols.map(|(j, _)| j as u32).collect(), k));
+            }
+        }
+        let prior = CountPrior::count(x_dim, n, rows.iter().map(|(c, k)| (c.as_slice(), *k)));
+        let contexts = prior.contexts();
+        self.policy.set_prior(prior);
+        Ok(contexts)
     }
 
     /// Trains the policy's softmax to predict the item bought next from `states` (of
@@ -84,30 +152,7 @@ impl Learner {
         next: &[u32],
     ) -> Result<PretrainReport, LearnerError> {
         let started = Instant::now();
-        let PolicyHead::Categorical { n } = self.policy.head() else {
-            return Err(LearnerError::Pretrain(
-                "needs a categorical policy (--algo ppo)".into(),
-            ));
-        };
-        let x_dim = self.policy.input_dim();
-        if space.feature_len() != x_dim {
-            return Err(LearnerError::Pretrain(format!(
-                "states of width {} for a policy input of {x_dim}",
-                space.feature_len()
-            )));
-        }
-        if states.len() != next.len() || next.is_empty() {
-            return Err(LearnerError::Pretrain(format!(
-                "{} states and {} next purchases",
-                states.len(),
-                next.len()
-            )));
-        }
-        if let Some(bad) = next.iter().find(|&&k| k as usize >= n) {
-            return Err(LearnerError::Pretrain(format!(
-                "item {bad} is not one of the {n} actions"
-            )));
-        }
+        self.check_logged(states, space, next)?;
         let batch = logged_batch(states, space, next, self.policy.pair_feature());
         let mut config = self.config.clone();
         config.epochs = 1;
@@ -153,6 +198,40 @@ impl Learner {
             last_epoch_loss: losses.last().copied().unwrap_or(f64::NAN),
             seconds: started.elapsed().as_secs_f64(),
         })
+    }
+
+    /// The actions, when `states` (of `space`) and `next` fit the categorical policy.
+    fn check_logged(
+        &self,
+        states: &StateBatch,
+        space: &StateSpace,
+        next: &[u32],
+    ) -> Result<usize, LearnerError> {
+        let PolicyHead::Categorical { n } = self.policy.head() else {
+            return Err(LearnerError::Pretrain(
+                "needs a categorical policy (--algo ppo)".into(),
+            ));
+        };
+        let x_dim = self.policy.input_dim();
+        if space.feature_len() != x_dim {
+            return Err(LearnerError::Pretrain(format!(
+                "states of width {} for a policy input of {x_dim}",
+                space.feature_len()
+            )));
+        }
+        if states.len() != next.len() || next.is_empty() {
+            return Err(LearnerError::Pretrain(format!(
+                "{} states and {} next purchases",
+                states.len(),
+                next.len()
+            )));
+        }
+        if let Some(bad) = next.iter().find(|&&k| k as usize >= n) {
+            return Err(LearnerError::Pretrain(format!(
+                "item {bad} is not one of the {n} actions"
+            )));
+        }
+        Ok(n)
     }
 }
 
@@ -268,6 +347,92 @@ mod tests {
             let best = (0..6).max_by(|&i, &j| row[i].total_cmp(&row[j]));
             assert_eq!(best, Some(t as usize), "{row:?}");
         }
+    }
+
+    #[test]
+    fn the_prior_picks_the_counted_item_travels_in_the_bytes_and_is_what_the_update_reads() {
+        use jsae_nn::HostInput;
+        use jsae_proto::{ActionBatch, PolicySnapshot};
+        use ndarray::ArrayView2;
+        use rand::SeedableRng;
+
+        use crate::fused::{FusedWork, HostMinibatch, LossConfig};
+
+        let (states, space, next) = logged();
+        let with_prior = |seed| {
+            let config = PpoConfig {
+                logged_prior: true,
+                ..PpoConfig::default()
+            };
+            Learner::new(
+                config,
+                14,
+                PolicyHead::Categorical { n: 6 },
+                seed,
+                3,
+                DeviceKind::Flex,
+            )
+        };
+        let mut l = with_prior(0);
+        assert!(
+            l.learn_from_logs(None).is_err(),
+            "the settings ask for logs"
+        );
+        assert_eq!(l.count_prior(&states, &space, &next).expect("counts"), 36);
+        let x = states.features(&space);
+        let x = &x[..36 * 14];
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let (mut greedy, mut logp) = (ActionBatch::Discrete(Vec::new()), Vec::new());
+        l.policy().act(x, true, &mut rng, &mut greedy, &mut logp);
+        assert_eq!(greedy, ActionBatch::Discrete(next[..36].to_vec()));
+
+        // sampled actions: the fused loss's log-probabilities are the actor's
+        let (mut sampled, mut logp) = (ActionBatch::Discrete(Vec::new()), Vec::new());
+        l.policy().act(x, false, &mut rng, &mut sampled, &mut logp);
+        let ActionBatch::Discrete(a) = &sampled else {
+            unreachable!()
+        };
+        let zeros = vec![0.0; 36];
+        let view = ArrayView2::from_shape((36, 14), x).expect("rows");
+        let sparse = jsae_nn::SparseRows::from_dense(view).expect("one-hot rows");
+        let log_ratio = |host: &HostPolicy, x: HostInput<'_>| {
+            let mb = HostMinibatch {
+                x,
+                continuous: &[],
+                discrete: a,
+                old_logp: &logp,
+                adv: &zeros,
+                returns: &zeros,
+                old_values: &zeros,
+                next_purchase: &[],
+            };
+            let cfg = LossConfig {
+                clip: 0.2,
+                clip_value_loss: false,
+                ent_coef: 0.0,
+                vf_coef: 0.5,
+                next_purchase_coef: 0.0,
+            };
+            let mut work = FusedWork::new(host);
+            host.loss_and_grads(&[mb], cfg, &mut work);
+            work.log_ratio().iter().fold(0.0f32, |m, r| m.max(r.abs()))
+        };
+        let mut host = HostPolicy::from_policy(l.policy());
+        for x in [HostInput::Dense(view), HostInput::Sparse(&sparse)] {
+            assert!(log_ratio(&host, x) < 1e-4, "{}", log_ratio(&host, x));
+        }
+        host.prior = None;
+        let without = log_ratio(&host, HostInput::Dense(view));
+        assert!(without > 0.5, "the prior is most of the logits: {without}");
+
+        // a policy loaded from the bytes acts with the same prior
+        let bytes = l.policy().to_bytes().expect("bytes");
+        let mut other = with_prior(9);
+        other
+            .restore(&PolicySnapshot { version: 1, bytes })
+            .expect("loads");
+        assert!(other.policy().prior().is_some());
+        assert_eq!(other.policy().head_outputs(x), l.policy().head_outputs(x));
     }
 
     #[test]

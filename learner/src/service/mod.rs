@@ -32,7 +32,7 @@ use jsae_proto::{client, net};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{CsvMetrics, Learner, Summary, UPDATE_COLUMNS};
+use crate::{CsvMetrics, Learner, LoggedPurchases, Summary, UPDATE_COLUMNS};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
 
@@ -49,7 +49,14 @@ pub struct LearnerOptions {
     /// The embedder to follow (JSAE, AE, RA): embedding versions and losses for the metrics and the
     /// final embedding checkpoint.
     pub embedder: Option<String>,
+    /// Logged purchases a fresh run's policy learns from before its first snapshot, where
+    /// the settings ask (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`).
+    pub logged: Option<Arc<LoggedPurchases>>,
 }
+
+/// Reads a run's logged purchases where its settings ask for them (None where they do not);
+/// the reason when they cannot be read. The learner knows no data set: its caller does.
+pub type LogsSource = fn(&TrainConfig) -> Result<Option<LoggedPurchases>, String>;
 
 /// Serves the learner on `listener` until the run ends (the summary is written and the
 /// actors are told) or `shutdown` resolves.
@@ -118,7 +125,8 @@ pub async fn serve(
         version,
         embedding: None,
         started: Instant::now(),
-        pretrain: fresh,
+        fresh,
+        logged: options.logged.clone(),
     };
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::Builder::new()
@@ -185,7 +193,7 @@ pub struct LearnerArgs {
 
 /// Runs the learner process: exit 0 at the end of the run (or on SIGINT/SIGTERM), 2 for a bad
 /// configuration, 1 when it fails.
-pub fn main(args: LearnerArgs) -> std::process::ExitCode {
+pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
     let config = args
         .run
         .for_service()
@@ -195,17 +203,19 @@ pub fn main(args: LearnerArgs) -> std::process::ExitCode {
             c.out = args.out.clone();
             c.validate().map_err(|e| e.to_string())?;
             let embedder = args.embedder.for_run(&c)?;
-            Ok((c, embedder))
+            let logged = logs(&c)?.map(Arc::new);
+            Ok((c, embedder, logged))
         });
     net::service_main(
         "jsae-learner",
         config,
-        |(config, embedder), shutdown| async move {
+        |(config, embedder, logged), shutdown| async move {
             let listener = net::bind(&args.listen.listen).await?;
             println!("jsae-learner listening on {}", listener.local_addr()?);
             let options = LearnerOptions {
                 out: args.out,
                 embedder,
+                logged,
             };
             Ok(serve(config, listener, options, shutdown).await?)
         },

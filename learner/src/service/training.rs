@@ -15,7 +15,7 @@ use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
 use tokio::sync::{mpsc, watch};
 
 use super::grpc::{Input, PolicyState};
-use crate::{Ingested, Learner, MetricsSink, Summary, update_scalars};
+use crate::{Ingested, Learner, LoggedPurchases, MetricsSink, Summary, update_scalars};
 
 /// The latest policy checkpoint of a run directory, if any.
 pub fn latest_checkpoint(out: &RunDir) -> Option<PolicySnapshot> {
@@ -32,9 +32,10 @@ pub(super) struct LearnerLoop {
     pub(super) version: Arc<AtomicU64>,
     pub(super) embedding: Option<EmbeddingSnapshot>,
     pub(super) started: Instant,
-    /// Pre-train on logged purchases (where the settings ask) before the first snapshot: a
-    /// fresh run, neither resumed nor warm-started. The actors wait for that snapshot.
-    pub(super) pretrain: bool,
+    /// A fresh run, neither resumed nor warm-started: its policy learns from `logged` (where
+    /// the settings ask) before the first snapshot, which the actors wait for.
+    pub(super) fresh: bool,
+    pub(super) logged: Option<Arc<LoggedPurchases>>,
 }
 
 impl LearnerLoop {
@@ -49,10 +50,10 @@ impl LearnerLoop {
     }
 
     pub(super) fn run(mut self, mut queue: mpsc::Receiver<Input>) -> anyhow::Result<Summary> {
-        if self.pretrain
-            && let Some(report) = self.learner.pretrain_for_run(&self.config)?
-        {
-            tracing::info!("{report}");
+        if self.fresh {
+            for note in self.learner.learn_from_logs(self.logged.as_deref())? {
+                tracing::info!("{note}");
+            }
         }
         let first = self.learner.snapshot()?;
         self.publish_snapshot(first)?;

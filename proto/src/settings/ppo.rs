@@ -49,6 +49,12 @@ pub struct PpoConfig {
     /// Adam's learning rate at the start of `logged_pretrain_epochs`, annealed linearly to 0
     /// over them.
     pub logged_pretrain_lr: f64,
+    /// Add to the categorical policy's logits the log of a next-purchase estimate counted
+    /// from the same logged purchases (an interpolated n-gram: a pair's counts smoothed
+    /// towards its last item's, those towards all purchases'), fixed, so the network learns
+    /// only what the counts get wrong (the recommender's PPO, fused update, no input
+    /// normalisation). The counts travel in the policy's bytes.
+    pub logged_prior: bool,
     /// Global gradient-norm limit.
     pub max_grad_norm: f32,
     /// Normalise advantages per minibatch.
@@ -123,6 +129,7 @@ impl Default for PpoConfig {
             next_purchase_coef: 0.0,
             logged_pretrain_epochs: 0,
             logged_pretrain_lr: 1e-3,
+            logged_prior: false,
             max_grad_norm: 0.5,
             norm_adv: true,
             target_kl: None,
@@ -223,6 +230,14 @@ impl PpoConfig {
                     .into(),
             );
         }
+        if self.logged_prior && (self.update != UpdatePath::Fused || self.normalize_obs) {
+            return Err(
+                "ppo.logged_prior needs ppo.update = \"fused\" and ppo.normalize_obs = false \
+                 (the prior is keyed by the host update's one-hot inputs); set \
+                 ppo.logged_prior = false for the others"
+                    .into(),
+            );
+        }
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }
@@ -236,14 +251,19 @@ mod tests {
     use crate::settings::{Algo, EnvName, TrainConfig};
 
     #[test]
-    fn the_pair_feature_and_logged_pretraining_are_the_recommenders_ppo_defaults() {
-        let ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
-        assert_eq!(ppo.ppo.pair_buckets, 131_072);
-        assert_eq!(ppo.ppo.logged_pretrain_epochs, 100);
+    fn the_logged_prior_is_the_recommenders_ppo_default_and_the_pair_feature_valid_there() {
+        let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
+        assert!(ppo.ppo.logged_prior);
+        assert_eq!(ppo.ppo.pair_buckets, 0);
+        assert_eq!(ppo.ppo.logged_pretrain_epochs, 0);
         assert_eq!(ppo.ppo.gamma, 0.0);
         ppo.validate().expect("the defaults are valid");
         let jsae = TrainConfig::defaults(EnvName::Recommender, Algo::Jsae);
+        assert!(!jsae.ppo.logged_prior);
         assert_eq!(jsae.ppo.pair_buckets, 0);
+        ppo.ppo.pair_buckets = 131_072;
+        ppo.validate()
+            .expect("the pair feature is valid on the recommender");
         let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Ppo);
         c.ppo.pair_buckets = 64;
         let reason = c.validate().expect_err("not the recommender").to_string();
@@ -284,6 +304,32 @@ mod tests {
             c.ppo.logged_pretrain_lr = bad;
             let reason = c.validate().expect_err("not positive").to_string();
             assert!(reason.contains("ppo.logged_pretrain_lr"), "{reason}");
+        }
+    }
+
+    #[test]
+    fn the_logged_prior_is_for_the_recommenders_ppo_on_the_fused_update_without_normalising() {
+        let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
+        ppo.ppo.logged_prior = true;
+        ppo.validate().expect("valid");
+        for (env, algo) in [
+            (EnvName::Recommender, Algo::Jsae),
+            (EnvName::Slotmachine, Algo::Ppo),
+        ] {
+            let mut c = TrainConfig::defaults(env, algo);
+            c.ppo.logged_prior = true;
+            let reason = c.validate().expect_err("refused").to_string();
+            assert!(reason.contains("ppo.logged_prior"), "{reason}");
+        }
+        for change in [
+            |c: &mut TrainConfig| c.ppo.update = UpdatePath::Burn,
+            |c: &mut TrainConfig| c.ppo.normalize_obs = true,
+        ] {
+            let mut c = ppo.clone();
+            (c.ppo.pair_buckets, c.ppo.logged_pretrain_epochs) = (0, 0);
+            change(&mut c);
+            let reason = c.validate().expect_err("refused").to_string();
+            assert!(reason.contains("ppo.logged_prior"), "{reason}");
         }
     }
 }
