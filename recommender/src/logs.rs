@@ -13,8 +13,7 @@ use jsae_proto::settings::{EnvName, TrainConfig};
 /// # Errors
 /// When the data cannot be read (the reason).
 pub fn logged_purchases(config: &TrainConfig) -> Result<Option<LoggedPurchases>, String> {
-    let wanted = config.ppo.logged_prior || config.ppo.logged_pretrain_epochs > 0;
-    if !wanted || config.env != EnvName::Recommender {
+    if !config.ppo.wants_logs() || config.env != EnvName::Recommender {
         return Ok(None);
     }
     let env = RecommenderEnv::new(&config.environment)

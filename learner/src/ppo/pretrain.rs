@@ -65,7 +65,7 @@ impl Learner {
     /// Whether the settings ask for logged purchases (`ppo.logged_prior`,
     /// `ppo.logged_pretrain_epochs`).
     pub fn wants_logs(&self) -> bool {
-        self.config.logged_prior || self.config.logged_pretrain_epochs > 0
+        self.config.wants_logs()
     }
 
     /// Readies a fresh policy from `logged` as the settings ask: counts the prior its logits

@@ -58,6 +58,20 @@ pub struct LearnerOptions {
 /// the reason when they cannot be read. The learner knows no data set: its caller does.
 pub type LogsSource = fn(&TrainConfig) -> Result<Option<LoggedPurchases>, String>;
 
+/// The [`LogsSource`] of a learner that reads no data set (the `jsae-learner` binary): runs
+/// whose settings ask for logs are refused with what to do instead.
+pub fn no_logs(config: &TrainConfig) -> Result<Option<LoggedPurchases>, String> {
+    if config.ppo.wants_logs() {
+        return Err(
+            "the run's settings ask for logged purchases (ppo.logged_prior or \
+             ppo.logged_pretrain_epochs) and this binary reads no data set: run `jsae learner`, \
+             which reads the recommender's, or set both off"
+                .into(),
+        );
+    }
+    Ok(None)
+}
+
 /// Serves the learner on `listener` until the run ends (the summary is written and the
 /// actors are told) or `shutdown` resolves.
 pub async fn serve(

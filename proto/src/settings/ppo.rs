@@ -166,6 +166,12 @@ impl PpoConfig {
             .or(self.tanh_mean.then_some(EMBEDDED_ENTROPY_LOG_STD_MAX))
     }
 
+    /// Whether a fresh policy learns from logged purchases (`logged_prior`,
+    /// `logged_pretrain_epochs`).
+    pub fn wants_logs(&self) -> bool {
+        self.logged_prior || self.logged_pretrain_epochs > 0
+    }
+
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
         if self.batch_steps == 0 || self.epochs == 0 || self.minibatch_size == 0 {
