@@ -392,15 +392,17 @@ mod tests {
         let ActionBatch::Discrete(a) = &sampled else {
             unreachable!()
         };
-        let zeros = vec![0.0; 36];
         let view = ArrayView2::from_shape((36, 14), x).expect("rows");
         let sparse = jsae_nn::SparseRows::from_dense(view).expect("one-hot rows");
-        let log_ratio = |host: &HostPolicy, x: HostInput<'_>| {
+        /// The largest |log-ratio| of the fused loss on `x`'s rows, actions `a` and
+        /// behaviour log-probabilities `logp`.
+        fn max_log_ratio(host: &HostPolicy, x: HostInput<'_>, a: &[u32], logp: &[f32]) -> f32 {
+            let zeros = vec![0.0; a.len()];
             let mb = HostMinibatch {
                 x,
                 continuous: &[],
                 discrete: a,
-                old_logp: &logp,
+                old_logp: logp,
                 adv: &zeros,
                 returns: &zeros,
                 old_values: &zeros,
@@ -416,7 +418,8 @@ mod tests {
             let mut work = FusedWork::new(host);
             host.loss_and_grads(&[mb], cfg, &mut work);
             work.log_ratio().iter().fold(0.0f32, |m, r| m.max(r.abs()))
-        };
+        }
+        let log_ratio = |host: &HostPolicy, x: HostInput<'_>| max_log_ratio(host, x, a, &logp);
         let mut host = HostPolicy::from_policy(l.policy());
         for x in [HostInput::Dense(view), HostInput::Sparse(&sparse)] {
             assert!(log_ratio(&host, x) < 1e-4, "{}", log_ratio(&host, x));
