@@ -394,18 +394,24 @@ mod tests {
         };
         let view = ArrayView2::from_shape((36, 14), x).expect("rows");
         let sparse = jsae_nn::SparseRows::from_dense(view).expect("one-hot rows");
+        let zeros = vec![0.0; 36];
         /// The largest |log-ratio| of the fused loss on `x`'s rows, actions `a` and
-        /// behaviour log-probabilities `logp`.
-        fn max_log_ratio(host: &HostPolicy, x: HostInput<'_>, a: &[u32], logp: &[f32]) -> f32 {
-            let zeros = vec![0.0; a.len()];
+        /// behaviour log-probabilities `logp` (`zeros`: advantages, returns and values).
+        fn max_log_ratio<'a>(
+            host: &HostPolicy,
+            x: HostInput<'a>,
+            a: &'a [u32],
+            logp: &'a [f32],
+            zeros: &'a [f32],
+        ) -> f32 {
             let mb = HostMinibatch {
                 x,
                 continuous: &[],
                 discrete: a,
                 old_logp: logp,
-                adv: &zeros,
-                returns: &zeros,
-                old_values: &zeros,
+                adv: zeros,
+                returns: zeros,
+                old_values: zeros,
                 next_purchase: &[],
             };
             let cfg = LossConfig {
@@ -419,13 +425,13 @@ mod tests {
             host.loss_and_grads(&[mb], cfg, &mut work);
             work.log_ratio().iter().fold(0.0f32, |m, r| m.max(r.abs()))
         }
-        let log_ratio = |host: &HostPolicy, x: HostInput<'_>| max_log_ratio(host, x, a, &logp);
         let mut host = HostPolicy::from_policy(l.policy());
         for x in [HostInput::Dense(view), HostInput::Sparse(&sparse)] {
-            assert!(log_ratio(&host, x) < 1e-4, "{}", log_ratio(&host, x));
+            let r = max_log_ratio(&host, x, a, &logp, &zeros);
+            assert!(r < 1e-4, "{r}");
         }
         host.prior = None;
-        let without = log_ratio(&host, HostInput::Dense(view));
+        let without = max_log_ratio(&host, HostInput::Dense(view), a, &logp, &zeros);
         assert!(without > 0.5, "the prior is most of the logits: {without}");
 
         // a policy loaded from the bytes acts with the same prior
