@@ -120,18 +120,12 @@ impl Learner {
         let n = self.check_logged(states, space, next)?;
         let x_dim = space.feature_len();
         let mut rows: Vec<(Vec<u32>, u32)> = Vec::with_capacity(next.len());
-        let (mut chunk, mut dense) = (StateBatch::empty(space), Vec::new());
-        for start in (0..next.len()).step_by(CHUNK) {
-            chunk.clear();
-            for i in start..(start + CHUNK).min(next.len()) {
-                chunk.push_row_of(states, i);
-            }
-            chunk.write_features(space, &mut dense);
+        feature_chunks(states, space, |start, dense| {
             for (row, &k) in dense.chunks_exact(x_dim).zip(&next[start..]) {
                 let cols = row.iter().enumerate().filter(|(_, v)| **v != 0.0);
                 rows.push((cols.map(|(j, _)| j as u32).collect(), k));
             }
-        }
+        });
         let prior = CountPrior::count(x_dim, n, rows.iter().map(|(c, k)| (c.as_slice(), *k)));
         let contexts = prior.contexts();
         self.policy.set_prior(prior);
@@ -235,6 +229,20 @@ impl Learner {
     }
 }
 
+/// `f(first row, their dense features)` for each chunk of `CHUNK` rows of `states` in turn
+/// (the whole one-hot matrix is never held at once).
+fn feature_chunks(states: &StateBatch, space: &StateSpace, mut f: impl FnMut(usize, &[f32])) {
+    let (mut chunk, mut dense) = (StateBatch::empty(space), Vec::new());
+    for start in (0..states.len()).step_by(CHUNK) {
+        chunk.clear();
+        for i in start..(start + CHUNK).min(states.len()) {
+            chunk.push_row_of(states, i);
+        }
+        chunk.write_features(space, &mut dense);
+        f(start, &dense);
+    }
+}
+
 /// A batch of logged steps for the fused update: the states as network inputs (one chunk
 /// of dense one-hots at a time), the item bought next as both the action and the
 /// next-purchase target, and no advantages, returns or behaviour log-probabilities.
@@ -247,22 +255,16 @@ fn logged_batch(
     let x_dim = space.feature_len();
     let rows = states.len();
     let mut input: Option<NetworkInput> = None;
-    let (mut chunk, mut dense) = (StateBatch::empty(space), Vec::new());
-    for start in (0..rows).step_by(CHUNK) {
-        chunk.clear();
-        for i in start..(start + CHUNK).min(rows) {
-            chunk.push_row_of(states, i);
-        }
-        chunk.write_features(space, &mut dense);
-        let part = NetworkInput::new(&dense, x_dim, None, pair);
-        input = Some(match input {
+    feature_chunks(states, space, |_, dense| {
+        let part = NetworkInput::new(dense, x_dim, None, pair);
+        input = Some(match input.take() {
             None => part,
             Some(mut all) => {
                 all.append(part);
                 all
             }
         });
-    }
+    });
     let zeros = vec![0.0; rows];
     Batch {
         x_dim,
