@@ -29,8 +29,15 @@ export JSAE_IMAGE="jsae:latest"
 # the stack came up, before the restart
 export JSAE_ENV=gridworld-discrete JSAE_ALGO=jsae JSAE_SEED=1 JSAE_ENV_STEPS=${JSAE_ENV_STEPS:-2000000}
 export JSAE_RUN=gridworld JSAE_RECOMMENDER_RUN=recommender RUST_LOG=info
-free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
-export JSAE_EMBEDDER_PORT=$(free_port) JSAE_LEARNER_PORT=$(free_port) JSAE_RECOMMENDER_PORT=$(free_port)
+# three distinct free host ports, held open together while they are chosen: one at a time, the
+# kernel may hand the same port out twice (CI once gave the embedder's port to the learner too)
+read -r JSAE_EMBEDDER_PORT JSAE_LEARNER_PORT JSAE_RECOMMENDER_PORT < <(python3 -c '
+import socket
+held = [socket.socket() for _ in range(3)]
+for s in held:
+    s.bind(("0.0.0.0", 0))
+print(*(s.getsockname()[1] for s in held))')
+export JSAE_EMBEDDER_PORT JSAE_LEARNER_PORT JSAE_RECOMMENDER_PORT
 work="$(mktemp -d /tmp/jsae-compose.XXXXXX)"
 chmod 755 "$work"
 export JSAE_CONFIG_FILE="$work/config.toml"
