@@ -366,6 +366,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
     c.embedding.pretrain_epochs = 1;
     let options = EmbedderOptions {
         checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),
+        pretrain_from: None,
     };
     let first = start_embedder_with(&c, options.clone()).await;
     let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())

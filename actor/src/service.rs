@@ -12,6 +12,7 @@
 //!   event ends the process with exit 0, as SIGINT/SIGTERM do.
 
 use std::future::Future;
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -27,6 +28,7 @@ use tonic::Code;
 
 use crate::pacing::{Pace, Pacing};
 use crate::worker::ActorWorker;
+use jsae_record::{Recorder, RecordingInfo};
 
 /// How an actor run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -62,6 +64,8 @@ pub struct ActorOptions {
     pub embedder: Option<String>,
     /// Learner URL.
     pub learner: String,
+    /// An MCAP file every stepped transition goes into, and the run's name in it.
+    pub record: Option<(PathBuf, String)>,
 }
 
 enum Control {
@@ -133,6 +137,8 @@ struct Links {
     reports: mpsc::Sender<pb::EvalReport>,
 }
 
+/// Steps until the run ends or `stop`, recording every transition when asked; the recording
+/// is finished (its summary written) however the loop ends.
 fn stepping_loop(
     config: &TrainConfig,
     options: &ActorOptions,
@@ -140,6 +146,36 @@ fn stepping_loop(
     stop: &AtomicBool,
 ) -> anyhow::Result<ActorReport> {
     let mut worker = ActorWorker::new(config, options.id, config.device)?;
+    let mut recorder = match &options.record {
+        Some((path, run_id)) => {
+            let info =
+                RecordingInfo::of_run(config, run_id, worker.state_space(), worker.action_space());
+            worker.set_recording(true);
+            Some(Recorder::create(path, &info)?)
+        }
+        None => None,
+    };
+    let result = step_until_done(config, options, links, stop, &mut worker, &mut recorder);
+    if let Some(r) = recorder {
+        let path = r.path().to_path_buf();
+        let n = r.finish()?;
+        tracing::info!(
+            "actor {}: {n} transitions recorded in {}",
+            options.id,
+            path.display()
+        );
+    }
+    result
+}
+
+fn step_until_done(
+    config: &TrainConfig,
+    options: &ActorOptions,
+    links: &Links,
+    stop: &AtomicBool,
+    worker: &mut ActorWorker,
+    recorder: &mut Option<Recorder>,
+) -> anyhow::Result<ActorReport> {
     let mut report = ActorReport {
         exit: ActorExit::Stopped,
         env_steps: 0,
@@ -236,6 +272,9 @@ fn stepping_loop(
             continue;
         }
         let rollout = worker.collect(config.rollout_len);
+        if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
+            r.write(&rollout.transitions, steps)?;
+        }
         if needs_embedder && !rollout.transitions.is_empty() {
             links
                 .transitions
@@ -401,6 +440,13 @@ pub struct ActorArgs {
     /// the clock].
     #[arg(long, env = "JSAE_ACTOR_ID")]
     pub id: Option<u64>,
+    /// Record every transition this actor steps into an MCAP file (replaced if it exists;
+    /// README: Recordings).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// The run's name in the recording [default: the file's name without .mcap].
+    #[arg(long, requires = "record")]
+    pub run_id: Option<String>,
 }
 
 /// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
@@ -426,10 +472,18 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
         "jsae-actor",
         config,
         |(config, embedder), shutdown| async move {
+            let record = args.record.map(|path| {
+                let run_id = args.run_id.unwrap_or_else(|| {
+                    path.file_stem()
+                        .map_or_else(String::new, |s| s.to_string_lossy().into_owned())
+                });
+                (path, run_id)
+            });
             let options = ActorOptions {
                 id,
                 embedder,
                 learner: args.learner,
+                record,
             };
             Ok(run(config, options, shutdown).await?)
         },

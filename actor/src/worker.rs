@@ -12,6 +12,7 @@ use jsae_proto::{
     ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
     RolloutFragment, StateBatch, StateSpace, TransitionBatch,
 };
+use jsae_record::RecordedSteps;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -36,6 +37,9 @@ pub struct Rollout {
     pub transitions: TransitionBatch,
     /// One fragment per environment (empty while acting at random).
     pub fragments: Vec<RolloutFragment>,
+    /// Where each transition was stepped, when recording (`transitions` then holds every
+    /// step, with or without an embedder).
+    pub recorded: Option<RecordedSteps>,
 }
 
 /// Per-environment episode bookkeeping.
@@ -61,6 +65,9 @@ pub struct ActorWorker {
     current: StateBatch,
     env_steps: u64,
     greedy: GreedyDecode,
+    /// Episodes each environment started before its current one.
+    episodes: Vec<u64>,
+    recording: bool,
 }
 
 impl std::fmt::Debug for ActorWorker {
@@ -113,6 +120,8 @@ impl ActorWorker {
             current,
             env_steps: 0,
             greedy: GreedyDecode::default(),
+            episodes: vec![0; config.envs_per_actor],
+            recording: false,
         })
     }
 
@@ -166,6 +175,11 @@ impl ActorWorker {
     /// discrete action (default: f of the mean).
     pub fn set_greedy_decode(&mut self, decode: GreedyDecode) {
         self.greedy = decode;
+    }
+
+    /// Whether rollouts carry every step for a recording ([`Rollout::recorded`]).
+    pub fn set_recording(&mut self, on: bool) {
+        self.recording = on;
     }
 
     /// Swaps in another policy version (the current one is ignored).
@@ -254,7 +268,17 @@ impl ActorWorker {
     pub fn collect(&mut self, rollout_steps: usize) -> Rollout {
         let k = self.envs.len();
         let acting = self.acting();
-        let record_transitions = self.config.algo.representation().needs_embedder();
+        let record_transitions =
+            self.recording || self.config.algo.representation().needs_embedder();
+        let mut recorded = self.recording.then(|| RecordedSteps {
+            policy_version: if acting {
+                self.weights.policy_version().unwrap_or(0)
+            } else {
+                0
+            },
+            embedding_version: if acting { self.embedding_version() } else { 0 },
+            ..RecordedSteps::default()
+        });
         let x_dim = self.weights.acting_policy().input_dim();
         let mut transitions = TransitionBatch {
             actor_id: self.id,
@@ -325,6 +349,12 @@ impl ActorWorker {
                     0.0
                 };
                 let run = &mut self.running[i];
+                if let Some(r) = recorded.as_mut() {
+                    r.env_index.push(i as u32);
+                    r.episode.push(self.episodes[i]);
+                    r.step.push(run.len);
+                    r.truncated.push(step.truncated);
+                }
                 run.ret += step.reward;
                 run.len += 1;
                 let ended = step.terminated || step.truncated;
@@ -336,6 +366,7 @@ impl ActorWorker {
                         success: self.envs[i].has_success().then_some(step.success),
                     });
                     *run = Running::default();
+                    self.episodes[i] += 1;
                     if step.truncated {
                         cut_states.push_row_of(&next, i);
                         cut_envs.push(i);
@@ -387,6 +418,7 @@ impl ActorWorker {
         Rollout {
             transitions,
             fragments,
+            recorded,
         }
     }
 

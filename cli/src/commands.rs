@@ -10,7 +10,7 @@ use jsae_proto::settings::{EnvName, RunFlags, TrainConfig};
 
 use crate::launch;
 use crate::progress::Progress;
-use crate::train_one_process;
+use crate::train::{RunFiles, train_one_process_with};
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
@@ -67,6 +67,12 @@ pub enum Command {
         /// Where report.md, report.json and figures/ go [default: DIR].
         #[arg(long)]
         out: Option<PathBuf>,
+    },
+    /// Summarise a recording (`--record`): transitions per actor, episodes, versions, the
+    /// run it came from (JSON).
+    RecordInfo {
+        /// The MCAP file.
+        file: PathBuf,
     },
     /// Evaluate a run's newest checkpoints (or a given policy checkpoint) with the
     /// deterministic and the sampled policy; prints JSON.
@@ -160,9 +166,39 @@ pub struct TrainArgs {
     /// action count).
     #[arg(long, env = "JSAE_INIT_FROM")]
     pub init_from: Option<PathBuf>,
+    /// Record every transition the actors step into this MCAP file (protobuf messages with
+    /// their schema inside; replaced if it exists). With several actors as separate
+    /// processes, actor K writes STEM-actor-K.mcap beside it.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
+    /// Pre-train the embedding (phi, g, T, f) on the first transitions of this recording
+    /// instead of fresh random play (jsae, ae and ra).
+    #[arg(long, value_name = "FILE.mcap")]
+    pub pretrain_from: Option<PathBuf>,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
+}
+
+/// The files `jsae train` records into and pre-trains from, checked before anything runs.
+fn run_files(a: &TrainArgs, config: &TrainConfig) -> Result<RunFiles, String> {
+    if let Some(path) = &a.pretrain_from {
+        if !config.algo.representation().needs_embedder() {
+            return Err(format!(
+                "--pretrain-from: --algo {} trains no embedding",
+                config.algo.as_str()
+            ));
+        }
+        if !path.is_file() {
+            return Err(format!("--pretrain-from {}: no such file", path.display()));
+        }
+    }
+    let absolute =
+        |p: &PathBuf| std::path::absolute(p).map_err(|e| format!("{}: {e}", p.display()));
+    Ok(RunFiles {
+        record: a.record.as_ref().map(absolute).transpose()?,
+        pretrain_from: a.pretrain_from.as_ref().map(absolute).transpose()?,
+    })
 }
 
 /// The settings `jsae train` runs with: the run flags' layers, then the other flags.
@@ -206,7 +242,9 @@ pub fn run(command: Command) -> ExitCode {
     jsae_proto::net::init_logging();
     match command {
         Command::Train(args) => {
-            let config = match build_config(&args) {
+            let built =
+                build_config(&args).and_then(|c| run_files(&args, &c).map(|files| (c, files)));
+            let (config, files) = match built {
                 Ok(c) => c,
                 Err(reason) => {
                     eprintln!("jsae train: {reason}");
@@ -215,10 +253,10 @@ pub fn run(command: Command) -> ExitCode {
             };
             let mut progress = Progress::new(config.env_steps, args.quiet);
             let outcome = if config.one_process {
-                train_one_process(&config, &mut progress)
+                train_one_process_with(&config, &files, &mut progress)
             } else {
                 launch::current_exe()
-                    .and_then(|exe| launch::train_processes(&config, &exe, &mut progress))
+                    .and_then(|exe| launch::train_processes(&config, &files, &exe, &mut progress))
             };
             match outcome {
                 Ok(outcome) => {
@@ -309,6 +347,19 @@ pub fn run(command: Command) -> ExitCode {
         }
         Command::Sweep { file, jobs, out } => crate::experiments::sweep(&file, jobs, &out),
         Command::Eval(args) => crate::eval::main(&args),
+        Command::RecordInfo { file } => match jsae_record::summarize(&file) {
+            Ok(summary) => {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&summary).unwrap_or_default()
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("jsae record-info: {e}");
+                ExitCode::from(2)
+            }
+        },
         Command::RecommenderEval(args) => crate::recommender_eval::main(&args),
         Command::Report { dir, out } => {
             crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))

@@ -17,7 +17,7 @@ use jsae_proto::settings::TrainConfig;
 
 use crate::plot;
 use crate::progress::Progress;
-use crate::train::{RunOutcome, TrainError};
+use crate::train::{RunFiles, RunOutcome, TrainError, run_id};
 
 /// A child process, killed if still running when dropped.
 #[derive(Debug)]
@@ -143,6 +143,7 @@ fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
 /// of `exe` (this program) and writes the run directory.
 pub fn train_processes(
     config: &TrainConfig,
+    files: &RunFiles,
     exe: &Path,
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
@@ -177,6 +178,9 @@ pub fn train_processes(
                 .display()
                 .to_string(),
         ]);
+        if let Some(path) = &files.pretrain_from {
+            args.extend(["--pretrain-from".into(), path.display().to_string()]);
+        }
         let (service, url) = Service::start(exe, &args, "embedder", &run, true)?;
         progress.note(&format!("embedder on {}", url.as_deref().unwrap_or("?")));
         embedder = Some(service);
@@ -212,6 +216,14 @@ pub fn train_processes(
         ]);
         if let Some(url) = &embedder_url {
             args.extend(["--embedder".into(), url.clone()]);
+        }
+        if let Some(path) = files.actor_record(id, config.actors) {
+            args.extend([
+                "--record".into(),
+                path.display().to_string(),
+                "--run-id".into(),
+                run_id(config),
+            ]);
         }
         let name = format!("actor-{id}");
         actors.push(Service::start(exe, &args, &name, &run, false)?.0);

@@ -5,7 +5,8 @@
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
 //! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), `eval`
-//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
+//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), `train::RunFiles`
+//! (`--record` and `--pretrain-from`; the format is the jsae-record crate's), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
 //! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
 //! services themselves (`jsae embedder|learner|actor|recommender`).
 
@@ -25,4 +26,4 @@ pub mod recommender_eval;
 pub mod replay;
 pub mod train;
 
-pub use train::{RunOutcome, TrainError, train_one_process};
+pub use train::{RunFiles, RunOutcome, TrainError, train_one_process, train_one_process_with};

@@ -15,6 +15,22 @@ pub fn url(addr: &str) -> String {
     }
 }
 
+/// An error with its causes, outermost first (`transport error: tcp connect error:
+/// Connection refused (os error 111)`): tonic's connect errors say little at the top.
+pub fn reason(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(cause) = source {
+        let more = cause.to_string();
+        if !text.ends_with(&more) {
+            text.push_str(": ");
+            text.push_str(&more);
+        }
+        source = cause.source();
+    }
+    text
+}
+
 /// Runs `call` to completion: exit 0 with its answer on stdout, 1 with `name: reason` on
 /// stderr.
 pub fn run<T: Display>(name: &str, call: impl Future<Output = Result<T, String>>) -> ExitCode {
@@ -42,6 +58,30 @@ pub fn run<T: Display>(name: &str, call: impl Future<Output = Result<T, String>>
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_reason_names_every_cause() {
+        let inner = std::io::Error::new(std::io::ErrorKind::ConnectionRefused, "refused");
+        let outer = std::io::Error::other(inner);
+        assert_eq!(super::reason(&outer), "refused");
+        #[derive(Debug)]
+        struct Top(std::io::Error);
+        impl std::fmt::Display for Top {
+            fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+                f.write_str("transport error")
+            }
+        }
+        impl std::error::Error for Top {
+            fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+                Some(&self.0)
+            }
+        }
+        let top = Top(std::io::Error::new(
+            std::io::ErrorKind::ConnectionRefused,
+            "Connection refused",
+        ));
+        assert_eq!(super::reason(&top), "transport error: Connection refused");
+    }
+
     #[test]
     fn bare_addresses_get_a_scheme() {
         assert_eq!(super::url("127.0.0.1:1"), "http://127.0.0.1:1");

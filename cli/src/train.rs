@@ -6,12 +6,13 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use jsae_embedder::EmbedderTrainer;
+use jsae_embedder::{EmbedderTrainer, pretrain_from_recording};
 use jsae_learner::{
-    CsvMetrics, Ingested, Learner, MetricsSink, Summary, UPDATE_COLUMNS, update_scalars,
+    Ingested, Learner, MetricsSink, RunMetrics, Summary, UPDATE_COLUMNS, update_scalars,
 };
 use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_record::{Recorder, RecordingInfo};
 
 use crate::plot;
 use crate::progress::Progress;
@@ -45,6 +46,9 @@ pub enum TrainError {
     /// The embedder refused a transition batch.
     #[error("embedder: {0}")]
     Embedder(String),
+    /// The recording could not be written.
+    #[error("--record: {0}")]
+    Record(#[from] jsae_record::RecordError),
 }
 
 fn io(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
@@ -65,9 +69,49 @@ pub struct RunOutcome {
     pub plots: Vec<PathBuf>,
 }
 
+/// Files a run reads or writes beside its run directory, named on the command line (not
+/// settings: config.toml does not keep them).
+#[derive(Debug, Clone, Default)]
+pub struct RunFiles {
+    /// Every stepped transition goes into this MCAP file; with several actors as separate
+    /// processes, actor K writes `STEM-actor-K.mcap` beside it ([`RunFiles::actor_record`]).
+    pub record: Option<PathBuf>,
+    /// The embedder pre-trains on this recording instead of fresh random play.
+    pub pretrain_from: Option<PathBuf>,
+}
+
+impl RunFiles {
+    /// The file actor `id` of `actors` separate processes records into.
+    pub fn actor_record(&self, id: usize, actors: usize) -> Option<PathBuf> {
+        let path = self.record.as_ref()?;
+        if actors <= 1 {
+            return Some(path.clone());
+        }
+        let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+        Some(path.with_file_name(format!("{stem}-actor-{id}.mcap")))
+    }
+}
+
+/// The run's name in recordings: its directory's name.
+pub fn run_id(config: &TrainConfig) -> String {
+    config
+        .out
+        .file_name()
+        .map_or_else(|| "run".to_string(), |n| n.to_string_lossy().into_owned())
+}
+
 /// Trains in this process and writes the run directory.
 pub fn train_one_process(
     config: &TrainConfig,
+    progress: &mut Progress,
+) -> Result<RunOutcome, TrainError> {
+    train_one_process_with(config, &RunFiles::default(), progress)
+}
+
+/// [`train_one_process`], recording and pre-training from recordings as `files` say.
+pub fn train_one_process_with(
+    config: &TrainConfig,
+    files: &RunFiles,
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
     config.validate()?;
@@ -77,7 +121,7 @@ pub fn train_one_process(
     let ckpt = run.checkpoints();
     std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
     std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
-    let mut metrics = CsvMetrics::create(&run.metrics_csv(), &UPDATE_COLUMNS).map_err(io(&dir))?;
+    let mut metrics = RunMetrics::open(&run, &UPDATE_COLUMNS, false).map_err(io(&dir))?;
 
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
@@ -118,18 +162,37 @@ pub fn train_one_process(
             progress.note(&note);
         }
     }
+    let mut last_embedding: Option<EmbeddingSnapshot> = None;
+    if let (Some(path), Some(emb)) = (&files.pretrain_from, embedder.as_mut()) {
+        let done = pretrain_from_recording(emb, path).map_err(TrainError::Embedder)?;
+        progress.note(&done.note);
+        for a in &mut actors {
+            a.set_embedding(&done.snapshot)?;
+        }
+        last_embedding = Some(done.snapshot);
+    }
+    let mut recorder = match &files.record {
+        Some(path) => {
+            actors.iter_mut().for_each(|a| a.set_recording(true));
+            let info = RecordingInfo::of_run(config, &run_id(config), &states, &actions);
+            Some(Recorder::create(path, &info)?)
+        }
+        None => None,
+    };
     let first = learner
         .snapshot()
         .map_err(jsae_learner::LearnerError::from)?;
     for a in &mut actors {
         a.set_policy(&first)?;
     }
-    let mut last_embedding: Option<EmbeddingSnapshot> = None;
     let mut last_policy: PolicySnapshot = first;
     let total = |actors: &[ActorWorker]| actors.iter().map(ActorWorker::env_steps).sum::<u64>();
     while total(&actors) < config.env_steps {
         for i in 0..actors.len() {
             let rollout = actors[i].collect(config.rollout_len);
+            if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
+                r.write(&rollout.transitions, steps)?;
+            }
             if let Some(emb) = embedder.as_mut() {
                 emb.ingest(&rollout.transitions)
                     .map_err(|e| TrainError::Embedder(e.to_string()))?;
@@ -155,7 +218,7 @@ pub fn train_one_process(
                 if let Ingested::Updated(report) = learner.ingest(fragment)? {
                     let wall = started.elapsed().as_secs_f64();
                     let row = update_scalars(&report.metrics, wall, last_embedding.as_ref());
-                    metrics.record(&row).map_err(io(metrics.path()))?;
+                    metrics.record(&row).map_err(io(&run.metrics_csv()))?;
                     progress.update(&report.metrics);
                     for a in &mut actors {
                         a.set_policy(&report.snapshot)?;
@@ -166,6 +229,11 @@ pub fn train_one_process(
         }
     }
 
+    if let Some(r) = recorder {
+        let path = r.path().to_path_buf();
+        let n = r.finish()?;
+        progress.note(&format!("{n} transitions recorded in {}", path.display()));
+    }
     progress.note("evaluating the deterministic and the sampled policy");
     let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
     let wall = started.elapsed().as_secs_f64();
@@ -177,6 +245,9 @@ pub fn train_one_process(
             .map_err(io(ckpt.path()))?;
     }
     summary.write(&run).map_err(io(&dir))?;
+    metrics
+        .record_eval(summary.env_steps, &summary.eval_scalars())
+        .map_err(io(&run.tensorboard()))?;
     let plots = plot::write_run_plots(&run, config, actors[0].embedding()).map_err(io(&dir))?;
     progress.finish();
     Ok(RunOutcome {

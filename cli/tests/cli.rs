@@ -1,5 +1,7 @@
 //! The `jsae` command line: help, bad flags and bad settings exit 2 with a one-line reason.
 
+mod common;
+
 use std::process::Command;
 
 fn jsae(args: &[&str]) -> std::process::Output {
@@ -75,6 +77,11 @@ fn a_short_run_prints_its_summary() {
         learner_log.contains("listening on 127.0.0.1:"),
         "{learner_log}"
     );
+    // no colour codes in a file (rough edge 4)
+    assert!(!learner_log.contains('\u{1b}'), "{learner_log}");
+
+    // the learner process wrote the metrics for TensorBoard too
+    common::assert_tensorboard_holds_the_metrics(&dir);
 
     // The finished run evaluates again from its checkpoints: the run's own evaluation seed
     // reproduces summary.json's evaluation.
@@ -198,5 +205,19 @@ fn services_stop_with_exit_0_on_sigterm() {
             std::thread::sleep(std::time::Duration::from_millis(50));
         };
         assert_eq!(status.code(), Some(0), "{args:?}: {status}");
+    }
+}
+
+#[test]
+fn a_refused_connection_says_why() {
+    for args in [
+        &["health", "--addr", "127.0.0.1:1", "--timeout-ms", "2000"][..],
+        &["recommend", "--addr", "127.0.0.1:1", "--k", "3", "24852"][..],
+    ] {
+        let out = jsae(args);
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let reason = String::from_utf8_lossy(&out.stderr).to_lowercase();
+        // not only tonic's "transport error" (rough edge 7)
+        assert!(reason.contains("refused"), "{args:?}: {reason}");
     }
 }

@@ -7,7 +7,7 @@
 //! `-log P(s'|s,a)`; f is trained on detached `g(a)`. RL losses never touch this model.
 //!
 //! Layout: `model` (the networks and losses), `nearest` (f for discrete
-//! actions), `replay` (the bounded transition buffer), `representation` (the seam: the
+//! actions), `recorded` (pre-training from a recording), `replay` (the bounded transition buffer), `representation` (the seam: the
 //! trait every trained representation implements), `structure` (how much of the action
 //! geometry g holds), `trainer` (pre-training, continuous
 //! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `service` (the gRPC embedder service). The settings
@@ -18,6 +18,7 @@
 mod embedding;
 mod model;
 mod nearest;
+mod recorded;
 pub mod replay;
 mod representation;
 pub mod service;
@@ -28,6 +29,7 @@ pub use embedding::Embedding;
 pub use jsae_proto::settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
+pub use recorded::{RecordedPretraining, pretrain_from_recording};
 pub use representation::RepresentationModel;
 pub use structure::ActionStructure;
 pub use trainer::{EmbedderStats, EmbedderTrainer};

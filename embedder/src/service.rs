@@ -104,6 +104,9 @@ pub struct EmbedderOptions {
     /// `embedding-latest.bpk` (with its version in `embedding-latest.version`); an embedder
     /// started on a directory that holds them continues from there.
     pub checkpoint_dir: Option<PathBuf>,
+    /// A recording (MCAP) to pre-train on at start instead of waiting for random play; not
+    /// read when a checkpoint is resumed.
+    pub pretrain_from: Option<PathBuf>,
 }
 
 /// The latest embedding checkpoint in `dir`, if any.
@@ -162,35 +165,50 @@ fn training_loop(
             parts.join(", ")
         );
     }
+    if !resumed && let Some(path) = &options.pretrain_from {
+        let done = crate::pretrain_from_recording(&mut trainer, path)?;
+        tracing::info!("{}", done.note);
+        publish_snapshot(done.snapshot, &trainer, publish, options);
+    }
     while let Some(batch) = queue.blocking_recv() {
         trainer.ingest(&batch).map_err(|e| e.to_string())?;
         if let Some(snap) = trainer.poll().map_err(|e| e.to_string())? {
-            tracing::info!(
-                "embedding v{} published ({} transitions, model loss {:.4}, decoder loss {:.4})",
-                snap.version,
-                trainer.stats().transitions,
-                snap.model_loss,
-                snap.decoder_loss
-            );
-            if let Some(dir) = &options.checkpoint_dir {
-                let ckpt = Checkpoints::new(dir);
-                for written in [
-                    ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes),
-                    ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes),
-                ] {
-                    if let Err(e) = written {
-                        tracing::warn!(
-                            "embedding checkpoint v{} in {}: {e}",
-                            snap.version,
-                            dir.display()
-                        );
-                    }
-                }
-            }
-            publish.send_replace(Some(Arc::new(snap)));
+            publish_snapshot(snap, &trainer, publish, options);
         }
     }
     Ok(())
+}
+
+/// Logs a new snapshot, checkpoints it and hands it to the subscribers.
+fn publish_snapshot(
+    snap: EmbeddingSnapshot,
+    trainer: &EmbedderTrainer,
+    publish: &watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
+    options: &EmbedderOptions,
+) {
+    tracing::info!(
+        "embedding v{} published ({} transitions, model loss {:.4}, decoder loss {:.4})",
+        snap.version,
+        trainer.stats().transitions,
+        snap.model_loss,
+        snap.decoder_loss
+    );
+    if let Some(dir) = &options.checkpoint_dir {
+        let ckpt = Checkpoints::new(dir);
+        for written in [
+            ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes),
+            ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes),
+        ] {
+            if let Err(e) = written {
+                tracing::warn!(
+                    "embedding checkpoint v{} in {}: {e}",
+                    snap.version,
+                    dir.display()
+                );
+            }
+        }
+    }
+    publish.send_replace(Some(Arc::new(snap)));
 }
 
 /// Serves the embedder on `listener` until `shutdown` resolves, then drains the queue and
@@ -255,6 +273,10 @@ pub struct EmbedderArgs {
     /// Directory for snapshot checkpoints (an embedder started on one continues from it).
     #[arg(long, env = "JSAE_CHECKPOINT_DIR")]
     pub checkpoint_dir: Option<PathBuf>,
+    /// Pre-train phi, g, T and f on the first transitions of this recording (`jsae train
+    /// --record`) instead of fresh random play.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub pretrain_from: Option<PathBuf>,
 }
 
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
@@ -263,13 +285,21 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
     let config = args
         .run
         .for_service()
-        .and_then(|c| c.validate().map(|()| c));
+        .and_then(|c| c.validate().map(|()| c))
+        .map_err(|e| e.to_string())
+        .and_then(|c| match &args.pretrain_from {
+            Some(path) if !path.is_file() => {
+                Err(format!("--pretrain-from {}: no such file", path.display()))
+            }
+            _ => Ok(c),
+        });
     let options = EmbedderOptions {
         checkpoint_dir: args.checkpoint_dir,
+        pretrain_from: args.pretrain_from,
     };
     net::service_main(
         "jsae-embedder",
-        config.map_err(|e| e.to_string()),
+        config,
         |config, shutdown| async move {
             let listener = net::bind(&args.listen.listen).await?;
             println!("jsae-embedder listening on {}", listener.local_addr()?);

@@ -195,13 +195,37 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         } else {
             return Ok(None);
         }
+        self.end_round().map(Some)
+    }
+
+    /// Transitions pre-training waits for (`embedding.pretrain_budget`).
+    pub fn pretrain_budget(&self) -> usize {
+        self.config.pretrain_budget(self.model.action_space())
+    }
+
+    /// Pre-trains at once on `batch` (a recording's transitions: `--pretrain-from`) instead
+    /// of waiting for random play; returns the first snapshot.
+    pub fn pretrain_on(&mut self, batch: &TransitionBatch) -> Result<EmbeddingSnapshot, String> {
+        if self.pretrained() {
+            return Err("the embedding is pre-trained already".into());
+        }
+        if batch.is_empty() {
+            return Err("no transitions to pre-train on".into());
+        }
+        self.ingest(batch).map_err(|e| e.to_string())?;
+        self.pretrain();
+        self.end_round().map_err(|e| e.to_string())
+    }
+
+    /// Ends a training round: the next version, its structure measured, its snapshot.
+    fn end_round(&mut self) -> Result<EmbeddingSnapshot, nn::RecordError> {
         self.since_update = 0;
         self.stats.version += 1;
         self.stats.action_structure = self.structure.as_ref().and_then(|s| {
             let (table, d) = self.model.action_embeddings()?;
             s.measure(&table, d)
         });
-        self.snapshot().map(Some)
+        self.snapshot()
     }
 
     /// Pre-training: `pretrain_epochs` passes of shuffled minibatches over the buffer.

@@ -10,7 +10,8 @@
 //! `normalise` (running statistics, reward scaling), `ppo` (the learner), `fused` (the PPO
 //! minibatch loss and gradients on the host, checked against burn's autodiff; the default
 //! update path), `metrics`
-//! (named scalars into a sink: metrics.csv), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests). The settings are
+//! (named scalars into a sink: metrics.csv), `tensorboard` (the same scalars as TensorBoard event
+//! files; `RunMetrics` writes both), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests). The settings are
 //! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
@@ -25,6 +26,7 @@ pub mod prior;
 mod record;
 pub mod service;
 pub mod synthetic;
+pub mod tensorboard;
 
 pub use jsae_proto::settings::{PpoConfig, UpdatePath};
 pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
@@ -34,3 +36,4 @@ pub use ppo::{
     UpdateReport, clipped_surrogate_loss,
 };
 pub use record::{EvalStats, RunMeta, Summary};
+pub use tensorboard::{RunMetrics, TensorBoardMetrics};

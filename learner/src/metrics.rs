@@ -16,6 +16,13 @@ pub type Scalar = (&'static str, Option<f64>);
 pub trait MetricsSink: Send {
     /// Keeps one row. Every row of a sink names the same scalars in the same order.
     fn record(&mut self, row: &[Scalar]) -> io::Result<()>;
+
+    /// Keeps the final evaluation's scalars ([`crate::Summary::eval_scalars`]), taken at
+    /// `env_steps`; sinks without a place for them ignore them.
+    fn record_eval(&mut self, env_steps: u64, row: &[Scalar]) -> io::Result<()> {
+        let _ = (env_steps, row);
+        Ok(())
+    }
 }
 
 /// The scalars of one learner update, in the order of `metrics.csv`'s columns.

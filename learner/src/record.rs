@@ -104,6 +104,18 @@ impl EvalStats {
 }
 
 impl Summary {
+    /// The evaluation's numbers as named scalars (TensorBoard's `eval/` tags).
+    pub fn eval_scalars(&self) -> Vec<crate::Scalar> {
+        vec![
+            ("return_mean", Some(self.eval_return_mean)),
+            ("return_std", Some(self.eval_return_std)),
+            ("success_rate", self.eval_success_rate),
+            ("length_mean", Some(self.eval_length_mean)),
+            ("stochastic_return_mean", self.eval_stochastic_return_mean),
+            ("stochastic_success_rate", self.eval_stochastic_success_rate),
+        ]
+    }
+
     /// The summary of a finished run.
     #[allow(clippy::too_many_arguments)]
     pub fn new(

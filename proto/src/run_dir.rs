@@ -73,6 +73,11 @@ impl RunDir {
         self.root.join("state_embeddings.svg")
     }
 
+    /// `DIR/tensorboard/`: TensorBoard event files, the metrics as scalars.
+    pub fn tensorboard(&self) -> PathBuf {
+        self.root.join("tensorboard")
+    }
+
     /// The service processes' logs.
     pub fn logs(&self) -> PathBuf {
         self.root.join("logs")

@@ -54,6 +54,23 @@ pub struct RecordingInfo {
 }
 
 impl RecordingInfo {
+    /// What a run of `config` named `run_id`, stepping environments of these spaces, records.
+    pub fn of_run(
+        config: &jsae_proto::settings::TrainConfig,
+        run_id: &str,
+        states: &StateSpace,
+        actions: &ActionSpace,
+    ) -> Self {
+        Self {
+            run_id: run_id.to_string(),
+            env: config.env.as_str().to_string(),
+            algo: config.algo.as_str().to_string(),
+            seed: config.seed,
+            states: states.clone(),
+            actions: actions.clone(),
+        }
+    }
+
     /// The channel metadata: plain strings, the spaces as JSON.
     fn to_metadata(&self) -> BTreeMap<String, String> {
         BTreeMap::from([

@@ -92,8 +92,11 @@ fn state_row(batch: &StateBatch, i: usize, real: &mut Vec<f32>, categories: &mut
 }
 
 impl Recorder {
-    /// Creates (or replaces) `path` and writes the schema and the channel describing `info`.
+    /// Creates (or replaces) `path`, and the folders above it, and writes the schema and the channel describing `info`.
     pub fn create(path: &Path, info: &RecordingInfo) -> Result<Self, RecordError> {
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(RecordError::io(path))?;
+        }
         let file = File::create(path).map_err(RecordError::io(path))?;
         let mut writer = mcap::WriteOptions::new()
             .compression(Some(mcap::Compression::Zstd))

@@ -129,6 +129,7 @@ pub fn start_actor(
         id,
         embedder: embedder.map(String::from),
         learner: learner.to_string(),
+        record: None,
     };
     let handle = tokio::spawn(jsae_actor::service::run(config.clone(), options, signal));
     Service {

@@ -23,3 +23,57 @@ pub fn venv_python() -> PathBuf {
     );
     PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
+
+/// Every scalar of metrics.csv is in `run/tensorboard/` as TensorBoard's own reader sees it
+/// (tag = column, step = env_steps, one point per non-empty cell, the same value), and the
+/// final evaluation under `eval/`.
+#[allow(dead_code, reason = "not every test crate reads TensorBoard files")]
+pub fn assert_tensorboard_holds_the_metrics(run: &Path) {
+    let out = Command::new(venv_python())
+        .arg(repo_root().join("scripts/python/tensorboard_scalars.py"))
+        .arg(run.join("tensorboard"))
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let tags: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    let text = std::fs::read_to_string(run.join("metrics.csv")).expect("metrics.csv");
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert!(!rows.is_empty(), "no update in metrics.csv");
+    let steps = header
+        .iter()
+        .position(|h| *h == "env_steps")
+        .expect("env_steps");
+    for (c, name) in header.iter().enumerate() {
+        let expected: Vec<(u64, f32)> = rows
+            .iter()
+            .filter_map(|r| {
+                let v: f64 = r[c].parse().ok()?;
+                Some((r[steps].parse().ok()?, v as f32))
+            })
+            .collect();
+        let got: Vec<(u64, f32)> = tags[*name]
+            .as_array()
+            .map(|points| {
+                points
+                    .iter()
+                    .map(|p| {
+                        (
+                            p[0].as_u64().unwrap_or(0),
+                            p[1].as_f64().unwrap_or(f64::NAN) as f32,
+                        )
+                    })
+                    .collect()
+            })
+            .unwrap_or_default();
+        assert_eq!(got, expected, "tag {name}");
+    }
+    for tag in ["eval/return_mean", "eval/length_mean"] {
+        assert_eq!(tags[tag].as_array().map(Vec::len), Some(1), "{tag}");
+    }
+}

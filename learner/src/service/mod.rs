@@ -2,7 +2,7 @@
 //!
 //! `PushFragments` validates each fragment (dimensions, finite values, a policy version this
 //! learner has published) and queues it; one thread owns the [`Learner`]: PPO updates, the
-//! run directory (metrics.csv per update, the latest policy checkpoint before each snapshot
+//! run directory (metrics.csv and TensorBoard scalars per update, the latest policy checkpoint before each snapshot
 //! is published, summary.json at the end) and the end of the run: at `env_steps` it asks the
 //! actors for deterministic evaluation episodes on the policy stream, writes the summary on
 //! the first report, tells the actors to finish, and returns.
@@ -32,7 +32,7 @@ use jsae_proto::{client, net};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{CsvMetrics, Learner, LoggedPurchases, Summary, UPDATE_COLUMNS};
+use crate::{Learner, LoggedPurchases, RunMetrics, Summary, UPDATE_COLUMNS};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
 
@@ -97,12 +97,10 @@ pub async fn serve(
         tracing::info!("policy warm-started from {}", source.dir.display());
         fresh = false;
     }
-    let metrics = if resumed {
-        CsvMetrics::append(&out.metrics_csv(), &UPDATE_COLUMNS)?
-    } else {
+    if !resumed {
         std::fs::write(out.config_toml(), config.to_toml())?;
-        CsvMetrics::create(&out.metrics_csv(), &UPDATE_COLUMNS)?
-    };
+    }
+    let metrics = RunMetrics::open(&out, &UPDATE_COLUMNS, resumed)?;
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
     let (stop_tx, stop_rx) = watch::channel(false);

@@ -108,7 +108,7 @@ impl LearnerLoop {
         anyhow::bail!("the learner stopped before the run ended")
     }
 
-    fn finish(self, eval: &EvalReport) -> anyhow::Result<Summary> {
+    fn finish(mut self, eval: &EvalReport) -> anyhow::Result<Summary> {
         let summary = self.learner.summary(
             &self.config,
             self.learner.env_steps(),
@@ -122,6 +122,8 @@ impl LearnerLoop {
             ckpt.write_versioned(Weights::Embedding, e.version, &e.bytes)?;
         }
         summary.write(&self.out)?;
+        self.metrics
+            .record_eval(summary.env_steps, &summary.eval_scalars())?;
         self.publish.send_modify(|s| s.finished = true);
         Ok(summary)
     }
