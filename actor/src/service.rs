@@ -117,6 +117,10 @@ where
                 tracing::error!("{name}: a message was too large: {}", status.message());
                 held = None;
             }
+            Ok(Err(status)) if status.code() == Code::Unavailable => {
+                // refused or lost: retried with backoff, but said, with the cause
+                tracing::warn!("{name}: {}", net::status_reason(&status));
+            }
             Ok(Err(status)) => {
                 tracing::debug!("{name}: {} ({:?})", status.message(), status.code());
             }
@@ -459,6 +463,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
         .and_then(|mut c| {
             c.envs_per_actor = args.envs.unwrap_or(c.envs_per_actor);
             c.validate().map_err(|e| e.to_string())?;
+            net::check_url("--learner", &args.learner)?;
             let embedder = args.embedder.for_run(&c)?;
             Ok((c, embedder))
         });

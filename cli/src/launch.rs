@@ -54,8 +54,13 @@ impl Service {
             path: log_path.clone(),
             source,
         })?;
+        let typed: Vec<String> = std::env::args().collect();
         let mut child = Command::new(exe)
             .args(args)
+            .env(
+                jsae_learner::COMMAND_LINE_ENV,
+                serde_json::to_string(&typed).unwrap_or_default(),
+            )
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(err_log)

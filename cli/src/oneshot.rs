@@ -15,20 +15,9 @@ pub fn url(addr: &str) -> String {
     }
 }
 
-/// An error with its causes, outermost first (`transport error: tcp connect error:
-/// Connection refused (os error 111)`): tonic's connect errors say little at the top.
+/// An error with its causes ([`jsae_proto::net::error_chain`]).
 pub fn reason(e: &(dyn std::error::Error + 'static)) -> String {
-    let mut text = e.to_string();
-    let mut source = e.source();
-    while let Some(cause) = source {
-        let more = cause.to_string();
-        if !text.ends_with(&more) {
-            text.push_str(": ");
-            text.push_str(&more);
-        }
-        source = cause.source();
-    }
-    text
+    jsae_proto::net::error_chain(e)
 }
 
 /// Runs `call` to completion: exit 0 with its answer on stdout, 1 with `name: reason` on

@@ -28,6 +28,20 @@ fn help_answers_and_bad_input_exits_2_with_a_reason() {
 
     let missing = jsae(&["train", "--config", "/nonexistent/run.toml"]);
     assert_eq!(missing.status.code(), Some(2));
+
+    // one batch larger than the whole budget is refused, not run silently (rough edge 3)
+    let batch = jsae(&[
+        "train",
+        "--algo",
+        "ppo",
+        "--envs",
+        "512",
+        "--env-steps",
+        "10000",
+    ]);
+    assert_eq!(batch.status.code(), Some(2));
+    let reason = String::from_utf8_lossy(&batch.stderr);
+    assert!(reason.contains("less than one batch"), "{reason}");
 }
 
 #[test]
@@ -79,6 +93,20 @@ fn a_short_run_prints_its_summary() {
     );
     // no colour codes in a file (rough edge 4)
     assert!(!learner_log.contains('\u{1b}'), "{learner_log}");
+
+    // what started the run, and when, and from which revision (rough edge 12)
+    let started: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.join("summary.json")).unwrap_or_default(),
+    )
+    .expect("summary.json");
+    let typed: Vec<&str> = started["command_line"]
+        .as_array()
+        .map(|a| a.iter().filter_map(|v| v.as_str()).collect())
+        .unwrap_or_default();
+    assert!(typed.windows(2).any(|w| w == ["--seed", "5"]), "{typed:?}");
+    assert_eq!(typed.get(1), Some(&"train"), "{typed:?}");
+    assert!(started["started_unix_s"].as_u64().unwrap_or(0) > 1_700_000_000);
+    assert!(!started["git_commit"].as_str().unwrap_or("").is_empty());
 
     // the learner process wrote the metrics for TensorBoard too
     common::assert_tensorboard_holds_the_metrics(&dir);
@@ -220,4 +248,72 @@ fn a_refused_connection_says_why() {
         // not only tonic's "transport error" (rough edge 7)
         assert!(reason.contains("refused"), "{args:?}: {reason}");
     }
+}
+
+#[test]
+fn an_actor_refuses_a_bad_address_and_warns_when_refused() {
+    // a malformed address: exit 2 at once, naming the flag (rough edge 6)
+    for (flag, args) in [
+        (
+            "--embedder",
+            &[
+                "actor",
+                "--env",
+                "gridworld-discrete",
+                "--seed",
+                "1",
+                "--algo",
+                "jsae",
+                "--learner",
+                "http://127.0.0.1:1",
+                "--embedder",
+                "not-a-url",
+            ][..],
+        ),
+        (
+            "--learner",
+            &[
+                "actor",
+                "--env",
+                "gridworld-discrete",
+                "--seed",
+                "1",
+                "--algo",
+                "ppo",
+                "--learner",
+                "not-a-url",
+            ][..],
+        ),
+    ] {
+        let out = jsae(args);
+        assert_eq!(out.status.code(), Some(2), "{args:?}");
+        let reason = String::from_utf8_lossy(&out.stderr);
+        assert!(reason.contains(flag), "{reason}");
+    }
+    // a well-formed address nobody answers on: retried, and each refusal said at WARN
+    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "actor",
+            "--env",
+            "gridworld-discrete",
+            "--seed",
+            "1",
+            "--algo",
+            "ppo",
+            "--learner",
+            "http://127.0.0.1:1",
+        ])
+        .env("RUST_LOG", "info")
+        .stderr(std::process::Stdio::piped())
+        .stdout(std::process::Stdio::null())
+        .spawn()
+        .expect("actor starts");
+    std::thread::sleep(std::time::Duration::from_secs(4));
+    let _ = child.kill();
+    let out = child.wait_with_output().expect("actor output");
+    let log = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        log.contains("WARN") && log.to_lowercase().contains("refused"),
+        "{log}"
+    );
 }

@@ -199,7 +199,8 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
 
     let info: Value = serde_json::from_str(&ok(&jsae(&["record-info", file_arg]))).expect("json");
     assert_eq!(info["transitions"].as_u64(), Some(rows.len() as u64));
-    assert_eq!(info["random_play"].as_u64(), Some(4096));
+    let random = info["random_play"].as_u64().unwrap_or(0);
+    assert!(random >= 4096 && random < rows.len() as u64, "{info}");
     assert_eq!(info["environments"].as_u64(), Some(16));
     let bad = jsae(&["record-info", run.as_str()]);
     assert_eq!(bad.status.code(), Some(2));
@@ -222,7 +223,7 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
         "--algo",
         "jsae",
         "--env-steps",
-        "8192",
+        "30000",
         "--one-process",
         "--quiet",
         "--pretrain-from",

@@ -35,5 +35,5 @@ pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport, UpdateMetrics,
     UpdateReport, clipped_surrogate_loss,
 };
-pub use record::{EvalStats, RunMeta, Summary};
+pub use record::{COMMAND_LINE_ENV, EvalStats, RunMeta, Summary};
 pub use tensorboard::{RunMetrics, TensorBoardMetrics};

@@ -67,6 +67,33 @@ pub struct Summary {
     pub embedding_version: u64,
     /// burn device.
     pub device: String,
+    /// The git revision the program was built from ("unknown" outside a checkout).
+    #[serde(default)]
+    pub git_commit: String,
+    /// When the run started, seconds since the Unix epoch.
+    #[serde(default)]
+    pub started_unix_s: u64,
+    /// The command that started the run, as typed (`jsae train ...`).
+    #[serde(default)]
+    pub command_line: Vec<String>,
+}
+
+/// The environment variable `jsae train` hands its own command line to the services in
+/// (JSON array), so the learner's summary names what the user typed.
+pub const COMMAND_LINE_ENV: &str = "JSAE_COMMAND_LINE";
+
+/// The command that started the run: [`COMMAND_LINE_ENV`] if set, else this process's own.
+fn command_line() -> Vec<String> {
+    std::env::var(COMMAND_LINE_ENV)
+        .ok()
+        .and_then(|json| serde_json::from_str(&json).ok())
+        .unwrap_or_else(|| std::env::args().collect())
+}
+
+/// `x` rounded to `digits` decimals, for reading.
+fn rounded(x: f64, digits: i32) -> f64 {
+    let scale = 10f64.powi(digits);
+    (x * scale).round() / scale
 }
 
 /// Return, success and length statistics of some evaluation episodes.
@@ -135,8 +162,8 @@ impl Summary {
             algo: meta.algo.clone(),
             seed: meta.seed,
             env_steps,
-            wall_seconds,
-            steps_per_second: env_steps as f64 / wall_seconds.max(1e-9),
+            wall_seconds: rounded(wall_seconds, 3),
+            steps_per_second: rounded(env_steps as f64 / wall_seconds.max(1e-9), 1),
             eval_episodes: eval.episodes.len(),
             eval_return_mean: det.return_mean,
             eval_return_std: det.return_std,
@@ -152,6 +179,12 @@ impl Summary {
             policy_version,
             embedding_version: eval.embedding_version,
             device: meta.device.clone(),
+            git_commit: env!("JSAE_GIT_COMMIT").to_string(),
+            started_unix_s: std::time::SystemTime::now()
+                .duration_since(std::time::UNIX_EPOCH)
+                .map_or(0.0, |d| d.as_secs_f64() - wall_seconds)
+                .max(0.0) as u64,
+            command_line: command_line(),
         }
     }
 

@@ -61,7 +61,7 @@ where
                 }
                 tracing::info!("embedding stream from {url} ended; reconnecting");
             }
-            Err(status) => tracing::debug!("embedder {url}: {}", status.message()),
+            Err(status) => tracing::warn!("embedder {url}: {}", crate::net::status_reason(&status)),
         }
         tokio::time::sleep(backoff.next_delay()).await;
     }
@@ -111,7 +111,7 @@ where
                 }
                 tracing::info!("policy stream from {url} ended; reconnecting");
             }
-            Err(status) => tracing::debug!("learner {url}: {}", status.message()),
+            Err(status) => tracing::warn!("learner {url}: {}", crate::net::status_reason(&status)),
         }
         tokio::time::sleep(backoff.next_delay()).await;
     }

@@ -98,6 +98,49 @@ pub fn channel(url: &str) -> Result<Channel, tonic::transport::Error> {
         .connect_lazy())
 }
 
+/// An error with its causes, outermost first (`transport error: tcp connect error:
+/// Connection refused (os error 111)`): tonic's errors and statuses say little at the top.
+pub fn error_chain(e: &(dyn std::error::Error + 'static)) -> String {
+    let mut text = e.to_string();
+    let mut source = e.source();
+    while let Some(cause) = source {
+        let more = cause.to_string();
+        if !text.ends_with(&more) {
+            text.push_str(": ");
+            text.push_str(&more);
+        }
+        source = cause.source();
+    }
+    text
+}
+
+/// A status as a reason: its code, its message and the causes under it (a refused
+/// connection's OS error), without tonic's metadata dump.
+pub fn status_reason(status: &tonic::Status) -> String {
+    let mut text = format!("{:?}: {}", status.code(), status.message());
+    if let Some(cause) = std::error::Error::source(status) {
+        let more = error_chain(cause);
+        if !text.ends_with(&more) {
+            text.push_str(": ");
+            text.push_str(&more);
+        }
+    }
+    text
+}
+
+/// Checks a service URL given as `flag` before anything connects: `http://host:port` or
+/// `https://host:port` (a bad address would otherwise be retried, silently, forever).
+pub fn check_url(flag: &str, url: &str) -> Result<(), String> {
+    let uri: tonic::transport::Uri = url
+        .parse()
+        .map_err(|e| format!("{flag} {url:?}: not a URL ({e}); give http://host:port"))?;
+    let scheme_ok = matches!(uri.scheme_str(), Some("http" | "https"));
+    if !scheme_ok || uri.host().is_none_or(str::is_empty) {
+        return Err(format!("{flag} {url:?}: not a URL like http://host:port"));
+    }
+    Ok(())
+}
+
 /// Log lines on stderr for a service process (`RUST_LOG` filters; `info` by default).
 pub fn init_logging() {
     let filter = tracing_subscriber::EnvFilter::try_from_default_env()

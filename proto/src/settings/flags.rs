@@ -73,7 +73,10 @@ impl EmbedderFlag {
             &self.embedder,
         ) {
             (false, _) => Ok(None),
-            (true, Some(url)) => Ok(Some(url.clone())),
+            (true, Some(url)) => {
+                crate::net::check_url("--embedder", url)?;
+                Ok(Some(url.clone()))
+            }
             (true, None) => Err(format!(
                 "--embedder is required for --algo {}",
                 config.algo.as_str()

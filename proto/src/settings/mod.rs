@@ -4,6 +4,7 @@
 //! configuration with its layering (defaults -> TOML file -> environment variables and
 //! flags) and validation.
 
+mod algo;
 mod device;
 mod embedding;
 mod envs;
@@ -12,6 +13,7 @@ mod init;
 mod ppo;
 mod run;
 
+pub use algo::{Algo, Representation};
 pub use device::DeviceKind;
 pub use embedding::EmbeddingConfig;
 pub use envs::{
@@ -22,4 +24,4 @@ pub use envs::{
 pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
 pub use init::InitSource;
 pub use ppo::{EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
-pub use run::{Algo, ConfigError, ConfigFile, ExplorationConfig, Representation, TrainConfig};
+pub use run::{ConfigError, ConfigFile, ExplorationConfig, TrainConfig};

@@ -6,76 +6,10 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::{DeviceKind, EmbeddingConfig, EnvConfig, EnvName, PpoConfig, validate_env_config};
+use super::{
+    Algo, DeviceKind, EmbeddingConfig, EnvConfig, EnvName, PpoConfig, validate_env_config,
+};
 use crate::{ActionSpace, StateSpace};
-
-/// The algorithms `jsae train --algo` names.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
-#[serde(rename_all = "lowercase")]
-pub enum Algo {
-    /// PPO on jointly-learned state and action embeddings (the method).
-    Jsae,
-    /// PPO on raw states and actions (categorical for discrete actions).
-    Ppo,
-    /// PPO on auto-encoder embeddings of states and actions (baseline).
-    Ae,
-    /// PPO on raw states acting through Chandak et al.'s action representations (baseline).
-    Ra,
-}
-
-impl Algo {
-    /// The name as written on the command line.
-    pub fn as_str(self) -> &'static str {
-        match self {
-            Self::Jsae => "jsae",
-            Self::Ppo => "ppo",
-            Self::Ae => "ae",
-            Self::Ra => "ra",
-        }
-    }
-
-    /// The representation the algorithm's policy sees and acts through.
-    pub fn representation(self) -> Representation {
-        match self {
-            Self::Jsae => Representation::Jsae,
-            Self::Ppo => Representation::Raw,
-            Self::Ae => Representation::AutoEncoder,
-            Self::Ra => Representation::ActionRepresentation,
-        }
-    }
-}
-
-/// What sits between the environment and PPO: raw states and actions, or a representation
-/// model the embedder trains. Every component asks it its questions (does it embed states?
-/// actions? is there an embedder to follow?) instead of testing algorithm names.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Representation {
-    /// Raw states in, raw actions out (plain PPO).
-    Raw,
-    /// Jointly-learned state and action embeddings: phi, g, T, f (the method).
-    Jsae,
-    /// Auto-encoder embeddings of states and of actions (baseline).
-    AutoEncoder,
-    /// Chandak et al.'s action representations, raw states (baseline).
-    ActionRepresentation,
-}
-
-impl Representation {
-    /// An embedder service trains it from the actors' transitions (and must be followed).
-    pub fn needs_embedder(self) -> bool {
-        !matches!(self, Self::Raw)
-    }
-
-    /// The policy's input is `phi(s)` rather than the raw state's features.
-    pub fn embeds_states(self) -> bool {
-        matches!(self, Self::Jsae | Self::AutoEncoder)
-    }
-
-    /// The policy acts in an action-embedding space whose points f decodes to actions.
-    pub fn decodes_actions(self) -> bool {
-        !matches!(self, Self::Raw)
-    }
-}
 
 /// Every setting of a training run.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -471,38 +405,32 @@ impl TrainConfig {
             return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
         }
         self.ppo.validate().map_err(ConfigError::Invalid)?;
-        if self.ppo.next_purchase_coef > 0.0
-            && (self.env != EnvName::Recommender || self.algo != Algo::Ppo)
-        {
-            return bad(
-                "ppo.next_purchase_coef is for --env recommender --algo ppo (a categorical \
-                 policy over the items of the state)"
-                    .into(),
-            );
-        }
-        if self.ppo.logged_pretrain_epochs > 0
-            && (self.env != EnvName::Recommender || self.algo != Algo::Ppo)
-        {
-            return bad(
-                "ppo.logged_pretrain_epochs is for --env recommender --algo ppo (purchase \
-                 logs and a categorical policy over their items)"
-                    .into(),
-            );
-        }
-        if self.ppo.logged_prior && (self.env != EnvName::Recommender || self.algo != Algo::Ppo) {
-            return bad(
-                "ppo.logged_prior is for --env recommender --algo ppo (purchase logs and a \
-                 categorical policy over their items)"
-                    .into(),
-            );
-        }
-        if self.ppo.pair_buckets > 0 && (self.env != EnvName::Recommender || self.algo != Algo::Ppo)
-        {
-            return bad(
-                "ppo.pair_buckets is for --env recommender --algo ppo (a pair of one-hot items \
-                 in the policy's input)"
-                    .into(),
-            );
+        // settings that only the recommender's categorical PPO policy has a use for
+        let recommender_ppo = self.env == EnvName::Recommender && self.algo == Algo::Ppo;
+        let items = "purchase logs and a categorical policy over their items";
+        for (set, key, why) in [
+            (
+                self.ppo.next_purchase_coef > 0.0,
+                "next_purchase_coef",
+                "a categorical policy over the items of the state",
+            ),
+            (
+                self.ppo.logged_pretrain_epochs > 0,
+                "logged_pretrain_epochs",
+                items,
+            ),
+            (self.ppo.logged_prior, "logged_prior", items),
+            (
+                self.ppo.pair_buckets > 0,
+                "pair_buckets",
+                "a pair of one-hot items in the policy's input",
+            ),
+        ] {
+            if set && !recommender_ppo {
+                return bad(format!(
+                    "ppo.{key} is for --env recommender --algo ppo ({why})"
+                ));
+            }
         }
         if self.algo.representation().needs_embedder() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;
@@ -521,6 +449,19 @@ impl TrainConfig {
                     self.embedding.replay_capacity
                 ));
             }
+        }
+        // one round of every actor is the learner's batch: past the budget, the run would
+        // silently take more steps than asked for in one update
+        if self.round_steps() as u64 > self.env_steps {
+            return bad(format!(
+                "env_steps ({}) is less than one batch: actors x envs_per_actor x rollout_len = \
+                 {} x {} x {} = {} steps; lower --envs or rollout_len, or raise --env-steps",
+                self.env_steps,
+                self.actors,
+                self.envs_per_actor,
+                self.rollout_len,
+                self.round_steps()
+            ));
         }
         Ok(())
     }

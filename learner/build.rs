@@ -1,0 +1,23 @@
+//! Names the git revision the learner is built from (`JSAE_GIT_COMMIT`, summary.json's
+//! `git_commit`): "unknown" outside a git checkout (a Docker build context, a tarball).
+
+use std::process::Command;
+
+fn git(args: &[&str]) -> Option<String> {
+    let out = Command::new("git").args(args).output().ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
+        .filter(|s| !s.is_empty())
+}
+
+fn main() {
+    let commit = git(&["rev-parse", "HEAD"]).unwrap_or_else(|| "unknown".into());
+    println!("cargo::rustc-env=JSAE_GIT_COMMIT={commit}");
+    if let Some(dir) = git(&["rev-parse", "--absolute-git-dir"]) {
+        // a new commit or another branch: built again with its name
+        for moved in ["HEAD", "refs/heads", "packed-refs"] {
+            println!("cargo::rerun-if-changed={dir}/{moved}");
+        }
+    }
+}
