@@ -44,6 +44,7 @@ pub fn summary_without_timing(dir: &std::path::Path) -> serde_json::Value {
     if let Some(map) = v.as_object_mut() {
         map.remove("wall_seconds");
         map.remove("steps_per_second");
+        map.remove("started_unix_s");
     }
     v
 }
