@@ -3,12 +3,15 @@
 //! `jsae-embedder`, `jsae-learner` and `jsae-actor` binaries), each on a free port it reports
 //! on stdout. The learner ends the run; then the embedder is stopped with SIGTERM (it writes
 //! its final checkpoint), the plots are drawn from the run directory and the summary read
-//! back. Each process's output goes to `DIR/logs/`. If anything fails, every child is killed.
+//! back. Each process's output goes to `DIR/logs/`. If anything fails, every child is killed;
+//! SIGTERM or SIGINT to `jsae train` is passed on to every child (SIGTERM, then SIGKILL for
+//! one that does not stop), so none is left running under PID 1.
 
 use std::io::{BufRead, BufReader, Write};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
-use std::sync::mpsc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, mpsc};
 use std::time::{Duration, Instant};
 
 use jsae_learner::{MetricsTable, Summary};
@@ -105,8 +108,8 @@ impl Service {
         if !matches!(self.child.try_wait(), Ok(None)) {
             return;
         }
-        let pid = self.child.id().to_string();
-        let _ = Command::new("kill").args(["-TERM", &pid]).status();
+        let pid = rustix::process::Pid::from_child(&self.child);
+        let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
         let deadline = Instant::now() + timeout;
         while Instant::now() < deadline {
             if !matches!(self.child.try_wait(), Ok(None)) {
@@ -133,6 +136,16 @@ fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
     ]
 }
 
+/// A flag that SIGTERM or SIGINT to this process sets (instead of ending it at once).
+fn stop_on_signal() -> Result<Arc<AtomicBool>, TrainError> {
+    let flag = Arc::new(AtomicBool::new(false));
+    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
+        signal_hook::flag::register(signal, flag.clone())
+            .map_err(|e| TrainError::Service(format!("cannot catch signal {signal}: {e}")))?;
+    }
+    Ok(flag)
+}
+
 /// The last data row of `metrics.csv`: (env steps, return, success rate).
 fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
     let table = MetricsTable::read(path).ok()?;
@@ -153,6 +166,7 @@ pub fn train_processes(
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
     config.validate()?;
+    let stop = stop_on_signal()?;
     let run = RunDir::new(&config.out);
     let dir = config.out.clone();
     let io = |path: &Path| {
@@ -238,6 +252,20 @@ pub fn train_processes(
     let status = loop {
         if let Ok(Some(status)) = learner.child.try_wait() {
             break status;
+        }
+        if stop.load(Ordering::Relaxed) {
+            progress.note("stopping: signal received; stopping the services");
+            for a in &mut actors {
+                a.terminate(Duration::from_secs(10));
+            }
+            learner.terminate(Duration::from_secs(30));
+            if let Some(e) = embedder.as_mut() {
+                e.terminate(Duration::from_secs(30));
+            }
+            return Err(TrainError::Service(format!(
+                "stopped by a signal; the services stopped, their checkpoints are in {}",
+                ckpt.path().display()
+            )));
         }
         if let Some(e) = embedder.as_mut()
             && let Ok(Some(status)) = e.child.try_wait()

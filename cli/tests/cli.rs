@@ -317,3 +317,78 @@ fn an_actor_refuses_a_bad_address_and_warns_when_refused() {
         "{log}"
     );
 }
+
+/// The processes whose parent is `pid` (from /proc).
+fn children_of(pid: u32) -> Vec<u32> {
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    entries
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter(|p| {
+            let stat = std::fs::read_to_string(format!("/proc/{p}/stat")).unwrap_or_default();
+            // "pid (comm) state ppid ...": the fields after the last ')'
+            let after = stat.rsplit(')').next().unwrap_or("");
+            after.split_whitespace().nth(1) == Some(&pid.to_string())
+        })
+        .collect()
+}
+
+/// Whether `pid` still runs (not gone, not a zombie waiting to be reaped).
+fn running(pid: u32) -> bool {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
+    let state = stat
+        .rsplit(')')
+        .next()
+        .unwrap_or("")
+        .split_whitespace()
+        .next();
+    matches!(state, Some(s) if s != "Z" && s != "X")
+}
+
+#[test]
+fn sigterm_to_train_stops_every_service_it_started() {
+    let dir = std::env::temp_dir().join(format!("jsae-cli-sigterm-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let train = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "train",
+            "--env",
+            "gridworld-discrete",
+            "--algo",
+            "jsae",
+            "--env-steps",
+            "5000000",
+            "--quiet",
+            "--out",
+            dir.to_str().unwrap_or("."),
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("jsae train starts");
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
+    let mut services = Vec::new();
+    while services.len() < 3 && std::time::Instant::now() < deadline {
+        std::thread::sleep(std::time::Duration::from_millis(200));
+        services = children_of(train.id());
+    }
+    assert_eq!(
+        services.len(),
+        3,
+        "embedder, learner and actor: {services:?}"
+    );
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let pid = rustix::process::Pid::from_child(&train);
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).expect("SIGTERM");
+    let out = train.wait_with_output().expect("train ends");
+    assert!(!out.status.success());
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(said.contains("stopped by a signal"), "{said}");
+    let left: Vec<u32> = services.into_iter().filter(|p| running(*p)).collect();
+    assert!(
+        left.is_empty(),
+        "still running after jsae train stopped: {left:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
