@@ -29,6 +29,16 @@ fn help_answers_and_bad_input_exits_2_with_a_reason() {
     let missing = jsae(&["train", "--config", "/nonexistent/run.toml"]);
     assert_eq!(missing.status.code(), Some(2));
 
+    // a bad value in the file: one line with the dotted key and its line (rough edge 9)
+    let file = std::env::temp_dir().join(format!("jsae-cli-bad-{}.toml", std::process::id()));
+    std::fs::write(&file, "seed = 3\n[ppo]\nepochs = 2\nlr = \"x\"\n").expect("file");
+    let bad_file = jsae(&["train", "--config", file.to_str().unwrap_or_default()]);
+    assert_eq!(bad_file.status.code(), Some(2));
+    let reason = String::from_utf8_lossy(&bad_file.stderr);
+    assert_eq!(reason.trim().lines().count(), 1, "{reason}");
+    assert!(reason.contains("ppo.lr (line 4): invalid type"), "{reason}");
+    let _ = std::fs::remove_file(&file);
+
     // one batch larger than the whole budget is refused, not run silently (rough edge 3)
     let batch = jsae(&[
         "train",

@@ -8,6 +8,7 @@ mod algo;
 mod device;
 mod embedding;
 mod envs;
+mod file_errors;
 mod flags;
 mod init;
 mod ppo;

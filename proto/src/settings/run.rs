@@ -174,10 +174,12 @@ fn merge(base: &mut toml::Value, overlay: toml::Value) {
     }
 }
 
+/// `base` with the file's `[section]` laid over it; an error names the dotted key and its
+/// line in `text` (the file).
 fn overlay<T: Serialize + serde::de::DeserializeOwned>(
     base: &T,
     part: Option<toml::Value>,
-    path: &Path,
+    (path, text, section): (&Path, Option<&str>, &str),
 ) -> Result<T, ConfigError> {
     let Some(part) = part else {
         return Ok(toml::Value::try_from(base)
@@ -194,7 +196,7 @@ fn overlay<T: Serialize + serde::de::DeserializeOwned>(
         .try_into()
         .map_err(|e: toml::de::Error| ConfigError::Parse {
             path: path.into(),
-            message: e.to_string(),
+            message: super::file_errors::section_error(text, section, &e),
         })
 }
 
@@ -328,18 +330,23 @@ impl TrainConfig {
         algo: Option<Algo>,
         file: Option<&Path>,
     ) -> Result<Self, ConfigError> {
-        let parsed: ConfigFile = match file {
-            None => ConfigFile::default(),
+        let text = match file {
+            None => None,
             Some(path) => {
-                let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
-                    path: path.into(),
-                    source,
-                })?;
-                toml::from_str(&text).map_err(|e| ConfigError::Parse {
-                    path: path.into(),
-                    message: e.to_string(),
-                })?
+                Some(
+                    std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                        path: path.into(),
+                        source,
+                    })?,
+                )
             }
+        };
+        let parsed: ConfigFile = match (file, &text) {
+            (Some(path), Some(text)) => toml::from_str(text).map_err(|e| ConfigError::Parse {
+                path: path.into(),
+                message: super::file_errors::top_level_error(text, &e),
+            })?,
+            _ => ConfigFile::default(),
         };
         let env = env.or(parsed.env).unwrap_or(EnvName::GridworldDiscrete);
         let algo = algo.or(parsed.algo).unwrap_or(Algo::Jsae);
@@ -358,10 +365,19 @@ impl TrainConfig {
         c.out = parsed.out.unwrap_or(c.out);
         c.one_process = parsed.one_process.unwrap_or(c.one_process);
         c.init_from = parsed.init_from.or(c.init_from);
-        c.environment = overlay(&c.environment, parsed.environment, path)?;
-        c.embedding = overlay(&c.embedding, parsed.embedding, path)?;
-        c.ppo = overlay(&c.ppo, parsed.ppo, path)?;
-        c.exploration = overlay(&c.exploration, parsed.exploration, path)?;
+        let text = text.as_deref();
+        c.environment = overlay(
+            &c.environment,
+            parsed.environment,
+            (path, text, "environment"),
+        )?;
+        c.embedding = overlay(&c.embedding, parsed.embedding, (path, text, "embedding"))?;
+        c.ppo = overlay(&c.ppo, parsed.ppo, (path, text, "ppo"))?;
+        c.exploration = overlay(
+            &c.exploration,
+            parsed.exploration,
+            (path, text, "exploration"),
+        )?;
         Ok(c)
     }
 
