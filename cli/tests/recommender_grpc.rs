@@ -384,4 +384,24 @@ fn the_recommender_command_line_refuses_incomplete_input() {
         .expect("jsae runs");
     assert_eq!(out.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&out.stderr).contains("--embedder"));
+
+    // a run that is not there: exit 2 unless asked to wait (rough edge 8)
+    let run = |dir: &str| {
+        Command::new(env!("CARGO_BIN_EXE_jsae"))
+            .args(["recommender", "--listen", "127.0.0.1:0", "--run", dir])
+            .output()
+            .expect("jsae runs")
+    };
+    let missing = run("/nonexistent/run");
+    assert_eq!(missing.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("--wait"));
+    // a run of another environment: exit 2, not "shape mismatch" forever
+    let dir = std::env::temp_dir().join(format!("jsae-rec-kind-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    std::fs::write(dir.join("config.toml"), "env = \"gridworld-discrete\"\n").expect("config");
+    let other = run(dir.to_str().unwrap_or_default());
+    assert_eq!(other.status.code(), Some(2));
+    let reason = String::from_utf8_lossy(&other.stderr);
+    assert!(reason.contains("not a recommender run"), "{reason}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -44,6 +44,10 @@ pub struct RecommenderArgs {
     /// burn device [default: flex].
     #[arg(long, value_enum, env = "JSAE_DEVICE")]
     pub device: Option<DeviceKind>,
+    /// With `--run`: wait for a run directory that has no config.toml yet (a run still
+    /// starting) instead of exiting with code 2.
+    #[arg(long, env = "JSAE_WAIT")]
+    pub wait: bool,
 }
 
 impl RecommenderArgs {
@@ -63,6 +67,18 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
         config: args.settings_file(),
         ..args.flags.clone()
     };
+    // a run of another environment has no recommender policy to serve
+    if let (Some(run), None) = (&args.run, &args.flags.config) {
+        let theirs = TrainConfig::from_layers(None, None, Some(&RunDir::new(run).config_toml()))
+            .map_err(|e| e.to_string())?;
+        if theirs.env != EnvName::Recommender {
+            return Err(format!(
+                "--run {}: a {} run, not a recommender run",
+                run.display(),
+                theirs.env.as_str()
+            ));
+        }
+    }
     let mut c = flags.layered().map_err(|e| e.to_string())?;
     if c.env != EnvName::Recommender {
         return Err(format!(
@@ -100,13 +116,21 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
 }
 
 /// Runs the recommender service: exit 0 on SIGINT/SIGTERM, 2 for a bad configuration, 1 when
-/// it fails. With `--run DIR` it waits for the run's config.toml (a run still starting).
+/// it fails. With `--run DIR --wait` it waits for the run's config.toml (a run still
+/// starting); without `--wait` a directory without one is refused.
 pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
     net::service_main(
         "jsae recommender",
         Ok(args),
         |args, mut shutdown| async move {
             if let (Some(file), None) = (args.settings_file(), &args.flags.config) {
+                if !file.exists() && !args.wait {
+                    return Err(Failure::config(format!(
+                        "--run: {} does not exist (not a run directory; --wait waits for a \
+                         run still starting)",
+                        file.display()
+                    )));
+                }
                 if !file.exists() {
                     tracing::info!("recommender: waiting for {}", file.display());
                 }
