@@ -34,7 +34,7 @@ pub async fn check(args: &HealthArgs) -> Result<&'static str, String> {
     let channel = endpoint
         .connect()
         .await
-        .map_err(|e| format!("{url}: {}", crate::oneshot::reason(&e)))?;
+        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?;
     let answer = HealthClient::new(channel)
         .check(HealthCheckRequest {
             service: args.service.clone(),

@@ -15,11 +15,6 @@ pub fn url(addr: &str) -> String {
     }
 }
 
-/// An error with its causes ([`jsae_proto::net::error_chain`]).
-pub fn reason(e: &(dyn std::error::Error + 'static)) -> String {
-    jsae_proto::net::error_chain(e)
-}
-
 /// Runs `call` to completion: exit 0 with its answer on stdout, 1 with `name: reason` on
 /// stderr.
 pub fn run<T: Display>(name: &str, call: impl Future<Output = Result<T, String>>) -> ExitCode {
@@ -51,7 +46,7 @@ mod tests {
     fn a_reason_names_every_cause() {
         let inner = std::io::Error::new(std::io::ErrorKind::ConnectionRefused, "refused");
         let outer = std::io::Error::other(inner);
-        assert_eq!(super::reason(&outer), "refused");
+        assert_eq!(jsae_proto::net::error_chain(&outer), "refused");
         #[derive(Debug)]
         struct Top(std::io::Error);
         impl std::fmt::Display for Top {
@@ -68,7 +63,10 @@ mod tests {
             std::io::ErrorKind::ConnectionRefused,
             "Connection refused",
         ));
-        assert_eq!(super::reason(&top), "transport error: Connection refused");
+        assert_eq!(
+            jsae_proto::net::error_chain(&top),
+            "transport error: Connection refused"
+        );
     }
 
     #[test]

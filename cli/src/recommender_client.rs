@@ -32,7 +32,7 @@ pub async fn ask(args: &AskArgs) -> Result<serde_json::Value, String> {
     let url = crate::oneshot::url(&args.addr);
     let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
         .await
-        .map_err(|e| format!("{url}: {}", crate::oneshot::reason(&e)))?;
+        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?;
     let r = client
         .recommend(pb::RecommendRequest {
             history: args.history.clone(),
@@ -92,7 +92,7 @@ pub async fn submit(addr: &str, sessions: Vec<Session>) -> Result<serde_json::Va
     let url = crate::oneshot::url(addr);
     let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
         .await
-        .map_err(|e| format!("{url}: {}", crate::oneshot::reason(&e)))?
+        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?
         .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     let mut total = pb::SubmitSummary::default();

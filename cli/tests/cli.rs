@@ -263,56 +263,28 @@ fn a_refused_connection_says_why() {
 #[test]
 fn an_actor_refuses_a_bad_address_and_warns_when_refused() {
     // a malformed address: exit 2 at once, naming the flag (rough edge 6)
+    let actor = |algo: &str, learner: &str, embedder: Option<&str>| {
+        let mut args = vec!["actor", "--env", "gridworld-discrete", "--seed", "1"];
+        args.extend(["--algo", algo, "--learner", learner]);
+        args.extend(embedder.map(|e| ["--embedder", e]).into_iter().flatten());
+        args.into_iter().map(String::from).collect::<Vec<_>>()
+    };
     for (flag, args) in [
         (
             "--embedder",
-            &[
-                "actor",
-                "--env",
-                "gridworld-discrete",
-                "--seed",
-                "1",
-                "--algo",
-                "jsae",
-                "--learner",
-                "http://127.0.0.1:1",
-                "--embedder",
-                "not-a-url",
-            ][..],
+            actor("jsae", "http://127.0.0.1:1", Some("not-a-url")),
         ),
-        (
-            "--learner",
-            &[
-                "actor",
-                "--env",
-                "gridworld-discrete",
-                "--seed",
-                "1",
-                "--algo",
-                "ppo",
-                "--learner",
-                "not-a-url",
-            ][..],
-        ),
+        ("--learner", actor("ppo", "not-a-url", None)),
     ] {
-        let out = jsae(args);
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let out = jsae(&args);
         assert_eq!(out.status.code(), Some(2), "{args:?}");
         let reason = String::from_utf8_lossy(&out.stderr);
         assert!(reason.contains(flag), "{reason}");
     }
     // a well-formed address nobody answers on: retried, and each refusal said at WARN
     let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args([
-            "actor",
-            "--env",
-            "gridworld-discrete",
-            "--seed",
-            "1",
-            "--algo",
-            "ppo",
-            "--learner",
-            "http://127.0.0.1:1",
-        ])
+        .args(actor("ppo", "http://127.0.0.1:1", None))
         .env("RUST_LOG", "info")
         .stderr(std::process::Stdio::piped())
         .stdout(std::process::Stdio::null())

@@ -60,7 +60,9 @@ pub struct Recorder {
     writer: mcap::Writer<BufWriter<File>>,
     channel: u16,
     sequence: u32,
-    run_id: String,
+    /// The message each transition is written from: the run id set once, the rows' vectors
+    /// emptied and refilled (no allocation per transition).
+    message: pb::Transition,
     path: PathBuf,
     written: u64,
     opened: Instant,
@@ -117,7 +119,10 @@ impl Recorder {
             writer,
             channel,
             sequence: 0,
-            run_id: info.run_id.clone(),
+            message: pb::Transition {
+                run_id: info.run_id.clone(),
+                ..Default::default()
+            },
             path: path.to_path_buf(),
             written: 0,
             opened: Instant::now(),
@@ -151,19 +156,21 @@ impl Recorder {
         }
         let time = now_ns();
         for i in 0..n {
-            let mut m = pb::Transition {
-                run_id: self.run_id.clone(),
-                actor_id: transitions.actor_id,
-                env_index: steps.env_index[i],
-                episode: steps.episode[i],
-                step: steps.step[i],
-                reward: transitions.rewards[i],
-                terminated: transitions.terminated[i],
-                truncated: steps.truncated[i],
-                policy_version: steps.policy_version,
-                embedding_version: steps.embedding_version,
-                ..Default::default()
-            };
+            let m = &mut self.message;
+            m.actor_id = transitions.actor_id;
+            m.env_index = steps.env_index[i];
+            m.episode = steps.episode[i];
+            m.step = steps.step[i];
+            m.reward = transitions.rewards[i];
+            m.terminated = transitions.terminated[i];
+            m.truncated = steps.truncated[i];
+            m.policy_version = steps.policy_version;
+            m.embedding_version = steps.embedding_version;
+            for v in [&mut m.state, &mut m.next_state, &mut m.continuous_action] {
+                v.clear();
+            }
+            m.state_categories.clear();
+            m.next_state_categories.clear();
             state_row(
                 &transitions.states,
                 i,
@@ -176,6 +183,7 @@ impl Recorder {
                 &mut m.next_state,
                 &mut m.next_state_categories,
             );
+            m.discrete_action = None;
             match &transitions.actions {
                 ActionBatch::Discrete(a) => m.discrete_action = Some(a[i]),
                 ActionBatch::Continuous { dim, data } => m
@@ -183,7 +191,8 @@ impl Recorder {
                     .extend_from_slice(&data[i * dim..(i + 1) * dim]),
             }
             self.buf.clear();
-            m.encode(&mut self.buf)
+            self.message
+                .encode(&mut self.buf)
                 .map_err(|e| RecordError::format(&self.path, e.to_string()))?;
             let header = MessageHeader {
                 channel_id: self.channel,
