@@ -367,6 +367,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
     let options = EmbedderOptions {
         checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),
         pretrain_from: None,
+        metrics: Default::default(),
     };
     let first = start_embedder_with(&c, options.clone()).await;
     let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())
@@ -413,7 +414,13 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
         embedder: Some(embedder.url.clone()),
         run: None,
     };
-    let served = tokio::spawn(jsae_recommender::serve(rec, listener, sources, signal));
+    let served = tokio::spawn(jsae_recommender::serve(
+        rec,
+        listener,
+        sources,
+        Default::default(),
+        signal,
+    ));
     let mut client = pb::recommender_client::RecommenderClient::new(channel(&rec_url).await);
     let ask = pb::RecommendRequest {
         history: vec!["item-0".into(), "item-1".into()],

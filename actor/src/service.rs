@@ -22,6 +22,7 @@ use jsae_proto::net::{self, Backoff};
 use jsae_proto::settings::{EmbedderFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_telemetry::{ActorMetrics, ActorSample, MetricsFlag, MetricsRegistry};
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
@@ -66,6 +67,8 @@ pub struct ActorOptions {
     pub learner: String,
     /// An MCAP file every stepped transition goes into, and the run's name in it.
     pub record: Option<(PathBuf, String)>,
+    /// The Prometheus families the stepping thread updates.
+    pub metrics: ActorMetrics,
 }
 
 enum Control {
@@ -296,6 +299,18 @@ fn step_until_done(
             pacing.sent();
         }
         report.fragments += sent_fragments;
+        let queued = |max: usize, free: usize| max.saturating_sub(free);
+        options.metrics.observe_rollout(&ActorSample {
+            env_steps: worker.env_steps(),
+            versions: (version, worker.embedding_version()),
+            queued: (
+                queued(
+                    links.transitions.max_capacity(),
+                    links.transitions.capacity(),
+                ),
+                queued(links.fragments.max_capacity(), links.fragments.capacity()),
+            ),
+        });
     }
 }
 
@@ -451,6 +466,9 @@ pub struct ActorArgs {
     /// The run's name in the recording [default: the file's name without .mcap].
     #[arg(long, requires = "record")]
     pub run_id: Option<String>,
+    /// `--metrics-listen`.
+    #[command(flatten)]
+    pub metrics: MetricsFlag,
 }
 
 /// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
@@ -484,11 +502,15 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
                 });
                 (path, run_id)
             });
+            let mut registry = MetricsRegistry::default();
+            let metrics = ActorMetrics::register(&mut registry);
+            jsae_telemetry::serve(&args.metrics, registry).await?;
             let options = ActorOptions {
                 id,
                 embedder,
                 learner: args.learner,
                 record,
+                metrics,
             };
             Ok(run(config, options, shutdown).await?)
         },

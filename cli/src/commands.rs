@@ -5,12 +5,12 @@ use std::process::ExitCode;
 
 use clap::{Args, Subcommand};
 use jsae_nn::DeviceKind;
-use jsae_proto::run_dir::RunDir;
+use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::settings::{EnvName, RunFlags, TrainConfig};
 
 use crate::launch;
 use crate::progress::Progress;
-use crate::train::{RunFiles, train_one_process_with};
+use crate::train::{RunOptions, train_one_process_with};
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
@@ -175,13 +175,21 @@ pub struct TrainArgs {
     /// instead of fresh random play (jsae, ae and ra).
     #[arg(long, value_name = "FILE.mcap")]
     pub pretrain_from: Option<PathBuf>,
+    /// Continue the stopped (or finished, with a larger --env-steps) run in DIR from its
+    /// config.toml and its latest checkpoints; metrics.csv and the step count go on.
+    #[arg(long, value_name = "DIR")]
+    pub resume: Option<PathBuf>,
+    /// Start a fresh run in a directory that holds one: remove the old run's files first
+    /// (config, metrics, summary, checkpoints, logs, TensorBoard files, plots; nothing else).
+    #[arg(long)]
+    pub force: bool,
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
 }
 
 /// The files `jsae train` records into and pre-trains from, checked before anything runs.
-fn run_files(a: &TrainArgs, config: &TrainConfig) -> Result<RunFiles, String> {
+fn run_files(a: &TrainArgs, config: &TrainConfig) -> Result<RunOptions, String> {
     if let Some(path) = &a.pretrain_from {
         if !config.algo.representation().needs_embedder() {
             return Err(format!(
@@ -195,14 +203,98 @@ fn run_files(a: &TrainArgs, config: &TrainConfig) -> Result<RunFiles, String> {
     }
     let absolute =
         |p: &PathBuf| std::path::absolute(p).map_err(|e| format!("{}: {e}", p.display()));
-    Ok(RunFiles {
+    Ok(RunOptions {
         record: a.record.as_ref().map(absolute).transpose()?,
         pretrain_from: a.pretrain_from.as_ref().map(absolute).transpose()?,
+        resume: a.resume.is_some(),
     })
+}
+
+/// A fresh run's directory: refused when it holds anything unless `force`, which removes the
+/// old run's files (checked last, so a mistyped flag never costs an old run).
+fn claim_run_dir(config: &TrainConfig, force: bool) -> Result<(), String> {
+    let run = RunDir::new(&config.out);
+    if !run.is_occupied() {
+        return Ok(());
+    }
+    if !force {
+        return Err(format!(
+            "{} is not empty (an earlier run?); pass --force to replace that run, --resume {} \
+             to continue it, or another --out",
+            config.out.display(),
+            config.out.display()
+        ));
+    }
+    run.clear_run()
+        .map_err(|e| format!("--force: cannot clear {}: {e}", config.out.display()))
+}
+
+/// The settings `jsae train --resume DIR` goes on with: DIR's config.toml, with another
+/// --env-steps, --device or --eval-episodes where given; flags that would make it another
+/// run are refused. A finished run is reopened only for more env steps than it took.
+fn resume_config(a: &TrainArgs, dir: &std::path::Path) -> Result<TrainConfig, String> {
+    let other_run = [
+        ("--env", a.run.env.is_some()),
+        ("--algo", a.run.algo.is_some()),
+        ("--seed", a.run.seed.is_some()),
+        ("--config", a.run.config.is_some()),
+        ("--actors", a.actors.is_some()),
+        ("--envs", a.envs.is_some()),
+        ("--out", a.out.is_some()),
+        ("--init-from", a.init_from.is_some()),
+        ("--pretrain-from", a.pretrain_from.is_some()),
+        ("--force", a.force),
+    ];
+    if let Some((flag, _)) = other_run.iter().find(|(_, given)| *given) {
+        return Err(format!(
+            "--resume goes on with the run's own settings ({}); {flag} cannot change them",
+            dir.display()
+        ));
+    }
+    let run = RunDir::new(dir);
+    if !run.config_toml().is_file() {
+        return Err(format!(
+            "--resume {}: no config.toml there, so no run to resume",
+            dir.display()
+        ));
+    }
+    let mut c = TrainConfig::from_layers(None, None, Some(&run.config_toml()))
+        .map_err(|e| e.to_string())?;
+    c.out = dir.to_path_buf();
+    c.env_steps = a.env_steps.unwrap_or(c.env_steps);
+    c.device = a.device.unwrap_or(c.device);
+    c.eval_episodes = a.eval_episodes.unwrap_or(c.eval_episodes);
+    c.one_process |= a.one_process;
+    c.validate().map_err(|e| e.to_string())?;
+    if run.checkpoints().read_latest(Weights::Policy).is_none() {
+        return Err(format!(
+            "--resume {}: no policy checkpoint ({}) to go on from",
+            dir.display(),
+            run.checkpoints().latest(Weights::Policy).display()
+        ));
+    }
+    if let Ok(text) = std::fs::read_to_string(run.summary_json()) {
+        let done = serde_json::from_str::<jsae_learner::Summary>(&text)
+            .map(|s| s.env_steps)
+            .map_err(|e| format!("{}: {e}", run.summary_json().display()))?;
+        if c.env_steps <= done {
+            return Err(format!(
+                "--resume {}: the run finished at {done} env steps; pass a larger --env-steps \
+                 to train on",
+                dir.display()
+            ));
+        }
+        std::fs::remove_file(run.summary_json())
+            .map_err(|e| format!("{}: {e}", run.summary_json().display()))?;
+    }
+    Ok(c)
 }
 
 /// The settings `jsae train` runs with: the run flags' layers, then the other flags.
 fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
+    if let Some(dir) = &a.resume {
+        return resume_config(a, dir);
+    }
     let mut c = a.run.layered().map_err(|e| e.to_string())?;
     c.env_steps = a.env_steps.unwrap_or(c.env_steps);
     c.actors = a.actors.unwrap_or(c.actors);
@@ -239,11 +331,17 @@ pub fn run(command: Command) -> ExitCode {
         Command::SubmitSessions(args) => return crate::recommender_client::submit_main(args),
         _ => {}
     }
-    jsae_proto::net::init_logging();
+    jsae_proto::logging::init_logging();
     match command {
         Command::Train(args) => {
-            let built =
-                build_config(&args).and_then(|c| run_files(&args, &c).map(|files| (c, files)));
+            let built = build_config(&args)
+                .and_then(|c| run_files(&args, &c).map(|files| (c, files)))
+                .and_then(|(c, files)| {
+                    if !files.resume {
+                        claim_run_dir(&c, args.force)?;
+                    }
+                    Ok((c, files))
+                });
             let (config, files) = match built {
                 Ok(c) => c,
                 Err(reason) => {

@@ -20,7 +20,7 @@ use jsae_proto::settings::TrainConfig;
 
 use crate::plot;
 use crate::progress::Progress;
-use crate::train::{RunFiles, RunOutcome, TrainError, run_id};
+use crate::train::{RunOptions, RunOutcome, TrainError, run_id};
 
 /// A child process, killed if still running when dropped.
 #[derive(Debug)]
@@ -64,6 +64,9 @@ impl Service {
                 jsae_learner::COMMAND_LINE_ENV,
                 serde_json::to_string(&typed).unwrap_or_default(),
             )
+            // one address for three processes cannot work: metrics only by hand or in
+            // containers (README: Prometheus)
+            .env_remove("JSAE_METRICS_LISTEN")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
             .stderr(err_log)
@@ -124,16 +127,22 @@ impl Service {
 }
 
 fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
-    vec![
-        "--env".into(),
-        config.env.as_str().into(),
-        "--algo".into(),
-        config.algo.as_str().into(),
-        "--seed".into(),
-        config.seed.to_string(),
-        "--config".into(),
-        config_path.display().to_string(),
-    ]
+    let format = jsae_proto::logging::chosen_log_format();
+    let log_format = format.map(|f| ["--log-format".to_string(), f.as_str().to_string()]);
+    log_format
+        .into_iter()
+        .flatten()
+        .chain([
+            "--env".into(),
+            config.env.as_str().into(),
+            "--algo".into(),
+            config.algo.as_str().into(),
+            "--seed".into(),
+            config.seed.to_string(),
+            "--config".into(),
+            config_path.display().to_string(),
+        ])
+        .collect()
 }
 
 /// A flag that SIGTERM or SIGINT to this process sets (instead of ending it at once).
@@ -157,11 +166,27 @@ fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
     ))
 }
 
+/// The embedder's newest pre-training report in its log (text or JSON lines), such as
+/// "pre-training the embedding on 32768 transitions: epoch 12/60, about 21 s left".
+fn pretraining_phase(log: &Path) -> Option<String> {
+    let text = std::fs::read_to_string(log).ok()?;
+    let phase = jsae_embedder::PRETRAIN_PHASE;
+    let line = text.lines().rev().find(|l| l.contains(phase))?;
+    let from = &line[line.find(phase)?..];
+    Some(
+        from.split('"')
+            .next()
+            .unwrap_or(from)
+            .trim_end()
+            .to_string(),
+    )
+}
+
 /// Trains with the embedder, the learner and `config.actors` actors as separate processes
 /// of `exe` (this program) and writes the run directory.
 pub fn train_processes(
     config: &TrainConfig,
-    files: &RunFiles,
+    files: &RunOptions,
     exe: &Path,
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
@@ -177,8 +202,10 @@ pub fn train_processes(
     std::fs::create_dir_all(&logs).map_err(io(&logs))?;
     let ckpt = run.checkpoints();
     std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
-    // a fresh run: a previous run's checkpoint would make the learner resume
-    ckpt.clear_latest();
+    if !files.resume {
+        // a fresh run: a previous run's checkpoint would make the learner resume
+        ckpt.clear_latest();
+    }
     let config_path = std::path::absolute(run.config_toml()).map_err(io(&dir))?;
     std::fs::write(&config_path, config.to_toml()).map_err(io(&config_path))?;
     let common = common_args(config, &config_path);
@@ -219,6 +246,9 @@ pub fn train_processes(
     ]);
     if let Some(url) = &embedder_url {
         args.extend(["--embedder".into(), url.clone()]);
+    }
+    if files.resume {
+        args.push("--resume".into());
     }
     let (mut learner, learner_url) = Service::start(exe, &args, "learner", &run, true)?;
     let learner_url = learner_url.unwrap_or_default();
@@ -275,8 +305,15 @@ pub fn train_processes(
                 run.log("embedder").display()
             )));
         }
-        if let Some((steps, ret, success)) = last_metrics(&metrics) {
-            progress.position(steps, ret, success);
+        match last_metrics(&metrics) {
+            Some((steps, ret, success)) => progress.position(steps, ret, success),
+            None if embedder.is_some() => progress.phase(
+                None,
+                &pretraining_phase(&run.log("embedder")).unwrap_or_else(|| {
+                    "waiting for the embedder: random play, then pre-training".into()
+                }),
+            ),
+            None => {}
         }
         std::thread::sleep(Duration::from_millis(500));
     };

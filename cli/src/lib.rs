@@ -5,7 +5,7 @@
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
 //! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), `eval`
-//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), `train::RunFiles`
+//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), `train::RunOptions`
 //! (`--record` and `--pretrain-from`; the format is the jsae-record crate's), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
 //! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
 //! services themselves (`jsae embedder|learner|actor|recommender`).
@@ -26,4 +26,4 @@ pub mod recommender_eval;
 pub mod replay;
 pub mod train;
 
-pub use train::{RunFiles, RunOutcome, TrainError, train_one_process, train_one_process_with};
+pub use train::{RunOptions, RunOutcome, TrainError, train_one_process, train_one_process_with};

@@ -1,6 +1,8 @@
 //! Training progress for people: an indicatif bar on a terminal, plain log lines otherwise.
 
 use std::io::IsTerminal;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressStyle};
 use jsae_learner::UpdateMetrics;
@@ -11,6 +13,45 @@ pub struct Progress {
     bar: Option<ProgressBar>,
     total: u64,
     last_logged: u64,
+    phases: PhaseReporter,
+}
+
+/// Reports what a run does before its first update (random play, pre-training with the time
+/// left) where the step count says little: the bar's message on a terminal, else a log line
+/// for each new phase and at most every 2 s within one. Cloned into the embedder trainer's pre-training observer.
+#[derive(Debug, Clone)]
+pub struct PhaseReporter {
+    bar: Option<ProgressBar>,
+    shown: bool,
+    last_logged: Arc<Mutex<Option<(Instant, String)>>>,
+}
+
+impl PhaseReporter {
+    /// Shows `message` (and `env_steps` on the bar where given).
+    pub fn report(&self, env_steps: Option<u64>, message: &str) {
+        if let Some(bar) = &self.bar {
+            if let Some(steps) = env_steps {
+                bar.set_position(steps.min(bar.length().unwrap_or(steps)));
+            }
+            bar.set_message(message.to_string());
+            return;
+        }
+        if !self.shown {
+            return;
+        }
+        // a new phase (the words before the colon) is logged at once, the same one again
+        // after 2 s
+        let kind = message.split(':').next().unwrap_or(message).to_string();
+        let mut last = self.last_logged.lock().unwrap_or_else(|e| e.into_inner());
+        let due = match &*last {
+            Some((t, k)) => *k != kind || t.elapsed() >= Duration::from_secs(2),
+            None => true,
+        };
+        if due {
+            *last = Some((Instant::now(), kind));
+            tracing::info!("{message}");
+        }
+    }
 }
 
 impl Progress {
@@ -25,11 +66,27 @@ impl Progress {
             bar.set_style(style);
             bar
         });
+        let phases = PhaseReporter {
+            bar: bar.clone(),
+            shown: !quiet,
+            last_logged: Arc::new(Mutex::new(None)),
+        };
         Self {
             bar,
             total: if quiet { 0 } else { total_env_steps },
             last_logged: 0,
+            phases,
         }
+    }
+
+    /// What the run does before its first update ([`PhaseReporter`]).
+    pub fn phase(&self, env_steps: Option<u64>, message: &str) {
+        self.phases.report(env_steps, message);
+    }
+
+    /// A reporter of phases for another owner (the embedder trainer's observer).
+    pub fn phases(&self) -> PhaseReporter {
+        self.phases.clone()
     }
 
     /// A learner update finished.

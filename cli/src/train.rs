@@ -8,7 +8,8 @@ use std::time::Instant;
 
 use jsae_embedder::{EmbedderTrainer, pretrain_from_recording};
 use jsae_learner::{
-    Ingested, Learner, MetricsSink, RunMetrics, Summary, UPDATE_COLUMNS, update_scalars,
+    Ingested, Learner, MetricsSink, ResumePoint, RunMetrics, Summary, UPDATE_COLUMNS,
+    update_scalars,
 };
 use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
@@ -69,18 +70,21 @@ pub struct RunOutcome {
     pub plots: Vec<PathBuf>,
 }
 
-/// Files a run reads or writes beside its run directory, named on the command line (not
-/// settings: config.toml does not keep them).
+/// What the command line adds to a run's settings (config.toml does not keep these): the
+/// files it records into and pre-trains from, and whether it continues a stopped run.
 #[derive(Debug, Clone, Default)]
-pub struct RunFiles {
+pub struct RunOptions {
     /// Every stepped transition goes into this MCAP file; with several actors as separate
-    /// processes, actor K writes `STEM-actor-K.mcap` beside it ([`RunFiles::actor_record`]).
+    /// processes, actor K writes `STEM-actor-K.mcap` beside it ([`RunOptions::actor_record`]).
     pub record: Option<PathBuf>,
     /// The embedder pre-trains on this recording instead of fresh random play.
     pub pretrain_from: Option<PathBuf>,
+    /// Continue the stopped run in the run directory (`jsae train --resume`): from its latest
+    /// policy and embedding checkpoints, counting on from its last metrics row.
+    pub resume: bool,
 }
 
-impl RunFiles {
+impl RunOptions {
     /// The file actor `id` of `actors` separate processes records into.
     pub fn actor_record(&self, id: usize, actors: usize) -> Option<PathBuf> {
         let path = self.record.as_ref()?;
@@ -105,23 +109,25 @@ pub fn train_one_process(
     config: &TrainConfig,
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
-    train_one_process_with(config, &RunFiles::default(), progress)
+    train_one_process_with(config, &RunOptions::default(), progress)
 }
 
 /// [`train_one_process`], recording and pre-training from recordings as `files` say.
 pub fn train_one_process_with(
     config: &TrainConfig,
-    files: &RunFiles,
+    files: &RunOptions,
     progress: &mut Progress,
 ) -> Result<RunOutcome, TrainError> {
     config.validate()?;
-    let started = Instant::now();
     let run = RunDir::new(&config.out);
     let dir = config.out.clone();
     let ckpt = run.checkpoints();
     std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
     std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
-    let mut metrics = RunMetrics::open(&run, &UPDATE_COLUMNS, false).map_err(io(&dir))?;
+    let resume = files.resume.then(|| ResumePoint::of(&run));
+    let started = resume.map_or_else(Instant::now, |p| p.started());
+    let mut metrics =
+        RunMetrics::open(&run, &UPDATE_COLUMNS, resume.is_some()).map_err(io(&dir))?;
 
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
@@ -142,7 +148,43 @@ pub fn train_one_process_with(
         )
         .with_action_motions(config.env.action_motions(&config.environment))
     });
-    if let Some(source) = config.init_source()? {
+    if let Some(emb) = embedder.as_mut() {
+        let phases = progress.phases();
+        emb.observe_pretraining(move |p| phases.report(None, &p.to_string()));
+    }
+    let mut last_embedding: Option<EmbeddingSnapshot> = None;
+    if let Some(point) = resume {
+        let policy = jsae_learner::service::latest_checkpoint(&run).ok_or_else(|| {
+            TrainError::Service(format!(
+                "--resume: no policy checkpoint in {}",
+                ckpt.path().display()
+            ))
+        })?;
+        learner
+            .restore(&policy)
+            .map_err(|e| TrainError::Service(format!("--resume policy: {e}")))?;
+        learner.count_steps_from(point.env_steps);
+        if let Some(emb) = embedder.as_mut() {
+            let saved =
+                jsae_embedder::service::latest_checkpoint(ckpt.path()).ok_or_else(|| {
+                    TrainError::Service(format!(
+                        "--resume: no embedding checkpoint in {}",
+                        ckpt.path().display()
+                    ))
+                })?;
+            emb.restore(&saved)
+                .map_err(|e| TrainError::Embedder(format!("--resume: {e}")))?;
+            for a in &mut actors {
+                a.set_embedding(&saved)?;
+            }
+            last_embedding = Some(saved);
+        }
+        progress.note(&format!(
+            "resuming at {} env steps from policy version {}",
+            point.env_steps,
+            learner.version()
+        ));
+    } else if let Some(source) = config.init_source()? {
         learner
             .warm_start(&source.policy)
             .map_err(|e| TrainError::Service(format!("--init-from policy: {e}")))?;
@@ -156,14 +198,13 @@ pub fn train_one_process_with(
         }
     }
 
-    if config.init_from.is_none() {
+    if config.init_from.is_none() && resume.is_none() {
         let logged = jsae_recommender::logged_purchases(config).map_err(TrainError::Service)?;
         for note in learner.learn_from_logs(logged.as_ref())? {
             progress.note(&note);
         }
     }
-    let mut last_embedding: Option<EmbeddingSnapshot> = None;
-    if let (Some(path), Some(emb)) = (&files.pretrain_from, embedder.as_mut()) {
+    if let (Some(path), Some(emb), None) = (&files.pretrain_from, embedder.as_mut(), resume) {
         let done = pretrain_from_recording(emb, path).map_err(TrainError::Embedder)?;
         progress.note(&done.note);
         for a in &mut actors {
@@ -186,8 +227,7 @@ pub fn train_one_process_with(
         a.set_policy(&first)?;
     }
     let mut last_policy: PolicySnapshot = first;
-    let total = |actors: &[ActorWorker]| actors.iter().map(ActorWorker::env_steps).sum::<u64>();
-    while total(&actors) < config.env_steps {
+    while learner.env_steps() < config.env_steps {
         for i in 0..actors.len() {
             let rollout = actors[i].collect(config.rollout_len);
             if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
@@ -196,6 +236,17 @@ pub fn train_one_process_with(
             if let Some(emb) = embedder.as_mut() {
                 emb.ingest(&rollout.transitions)
                     .map_err(|e| TrainError::Embedder(e.to_string()))?;
+                if !emb.pretrained() {
+                    let steps = actors.iter().map(ActorWorker::env_steps).sum::<u64>();
+                    progress.phase(
+                        Some(learner.env_steps().max(steps)),
+                        &format!(
+                            "random play for pre-training: {}/{} transitions",
+                            emb.replay_len().min(emb.pretrain_budget()),
+                            emb.pretrain_budget()
+                        ),
+                    );
+                }
                 if let Some(snap) = emb
                     .poll()
                     .map_err(|e| TrainError::Embedder(e.to_string()))?
@@ -210,6 +261,9 @@ pub fn train_one_process_with(
                     for a in &mut actors {
                         a.set_embedding(&snap)?;
                     }
+                    // the latest weights, so that a stopped run can be resumed
+                    ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
+                        .map_err(io(ckpt.path()))?;
                     last_embedding = Some(snap);
                 }
             }
@@ -223,6 +277,9 @@ pub fn train_one_process_with(
                     for a in &mut actors {
                         a.set_policy(&report.snapshot)?;
                     }
+                    let snap = &report.snapshot;
+                    ckpt.write_latest(Weights::Policy, snap.version, &snap.bytes)
+                        .map_err(io(ckpt.path()))?;
                     last_policy = report.snapshot;
                 }
             }
@@ -237,7 +294,7 @@ pub fn train_one_process_with(
     progress.note("evaluating the deterministic and the sampled policy");
     let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
     let wall = started.elapsed().as_secs_f64();
-    let summary = learner.summary(config, total(&actors), wall, &eval);
+    let summary = learner.summary(config, learner.env_steps(), wall, &eval);
     ckpt.write_versioned(Weights::Policy, last_policy.version, &last_policy.bytes)
         .map_err(io(ckpt.path()))?;
     if let Some(e) = &last_embedding {

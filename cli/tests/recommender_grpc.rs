@@ -327,6 +327,8 @@ fn the_reference_policies_are_served_to_a_python_client() {
     ] {
         let mut args: Vec<std::ffi::OsString> = vec!["--policy".into(), name.into()];
         args.extend(["--config".into(), settings.clone().into()]);
+        let metrics = format!("127.0.0.1:{}", common::free_port());
+        args.extend(["--metrics-listen".into(), metrics.clone().into()]);
         let (_server, addr) = start_recommender(&args);
         let library = Recommender::new(&config, choice, jsae_nn::DeviceKind::Flex)
             .expect("the same recommender in process");
@@ -343,6 +345,12 @@ fn the_reference_policies_are_served_to_a_python_client() {
             choice == PolicyChoice::Popular,
             "{name}: {a:?} {b:?}"
         );
+        // Prometheus: both calls in the latency histogram and the request counter
+        let text = common::scrape_metrics(&metrics);
+        let count = common::metric_value(&text, "jsae_recommender_recommend_seconds_count");
+        assert_eq!(count, Some(2.0), "{text}");
+        let ok = r#"jsae_recommender_requests_total{rpc="recommend",code="ok"}"#;
+        assert_eq!(common::metric_value(&text, ok), Some(2.0), "{text}");
     }
     // a reference policy follows no learner
     let out = Command::new(env!("CARGO_BIN_EXE_jsae"))

@@ -18,6 +18,7 @@
 mod embedding;
 mod model;
 mod nearest;
+mod pretrain_progress;
 mod recorded;
 pub mod replay;
 mod representation;
@@ -29,6 +30,7 @@ pub use embedding::Embedding;
 pub use jsae_proto::settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
+pub use pretrain_progress::{PRETRAIN_PHASE, PretrainProgress};
 pub use recorded::{RecordedPretraining, pretrain_from_recording};
 pub use representation::RepresentationModel;
 pub use structure::ActionStructure;

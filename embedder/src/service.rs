@@ -16,6 +16,7 @@ use jsae_proto::run_dir::{Checkpoints, Weights};
 use jsae_proto::settings::{ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{self, MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
+use jsae_telemetry::{EmbedderMetrics, EmbedderSample, MetricsFlag, MetricsRegistry};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
@@ -107,6 +108,8 @@ pub struct EmbedderOptions {
     /// A recording (MCAP) to pre-train on at start instead of waiting for random play; not
     /// read when a checkpoint is resumed.
     pub pretrain_from: Option<PathBuf>,
+    /// The Prometheus families the training thread updates.
+    pub metrics: EmbedderMetrics,
 }
 
 /// The latest embedding checkpoint in `dir`, if any.
@@ -175,6 +178,14 @@ fn training_loop(
         if let Some(snap) = trainer.poll().map_err(|e| e.to_string())? {
             publish_snapshot(snap, &trainer, publish, options);
         }
+        let stats = trainer.stats();
+        options.metrics.observe_batch(&EmbedderSample {
+            transitions: stats.transitions,
+            embedding_version: stats.version,
+            losses: (stats.model_loss, stats.decoder_loss),
+            queue_depth: queue.len(),
+            replay_len: trainer.replay_len(),
+        });
     }
     Ok(())
 }
@@ -277,6 +288,9 @@ pub struct EmbedderArgs {
     /// --record`) instead of fresh random play.
     #[arg(long, value_name = "FILE.mcap")]
     pub pretrain_from: Option<PathBuf>,
+    /// `--metrics-listen`.
+    #[command(flatten)]
+    pub metrics: MetricsFlag,
 }
 
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
@@ -293,15 +307,18 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
             }
             _ => Ok(c),
         });
+    let mut registry = MetricsRegistry::default();
     let options = EmbedderOptions {
         checkpoint_dir: args.checkpoint_dir,
         pretrain_from: args.pretrain_from,
+        metrics: EmbedderMetrics::register(&mut registry),
     };
     net::service_main(
         "jsae-embedder",
         config,
         |config, shutdown| async move {
             let listener = net::bind(&args.listen.listen).await?;
+            jsae_telemetry::serve(&args.metrics, registry).await?;
             println!("jsae-embedder listening on {}", listener.local_addr()?);
             Ok(serve(config, listener, options, shutdown).await?)
         },

@@ -11,6 +11,7 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
+use crate::pretrain_progress::{PretrainObserver, PretrainProgress};
 use crate::replay::Replay;
 use crate::representation::RepresentationModel;
 use crate::structure::ActionStructure;
@@ -48,6 +49,7 @@ pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
     since_update: usize,
     stats: EmbedderStats,
     structure: Option<ActionStructure>,
+    pretrain_observer: Option<PretrainObserver>,
 }
 
 /// The optimiser (burn's has no `Debug`).
@@ -132,7 +134,13 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             since_update: 0,
             stats: EmbedderStats::default(),
             structure: None,
+            pretrain_observer: None,
         }
+    }
+
+    /// Hands every pass of pre-training to `observe` (a progress bar), besides the log.
+    pub fn observe_pretraining(&mut self, observe: impl FnMut(&PretrainProgress) + Send + 'static) {
+        self.pretrain_observer = Some(PretrainObserver(Box::new(observe)));
     }
 
     /// Measures every snapshot's action embeddings against each action's true displacement
@@ -235,7 +243,8 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         let bs = self.config.batch_size.min(n);
         let lr = self.config.lr;
         let mut loss = (0.0, 0.0);
-        for _ in 0..self.config.pretrain_epochs {
+        let started = std::time::Instant::now();
+        for epoch in 1..=self.config.pretrain_epochs {
             order.shuffle(&mut self.rng);
             let (mut sum, mut count) = ((0.0, 0.0), 0);
             for rows in order.chunks(bs) {
@@ -245,6 +254,18 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                 count += 1;
             }
             loss = (sum.0 / count as f32, sum.1 / count as f32);
+            let progress = PretrainProgress {
+                epoch,
+                epochs: self.config.pretrain_epochs,
+                transitions: n,
+                elapsed: started.elapsed(),
+            };
+            if progress.worth_logging() {
+                tracing::info!("{progress}");
+            }
+            if let Some(PretrainObserver(observe)) = self.pretrain_observer.as_mut() {
+                observe(&progress);
+            }
         }
         self.stats.model_loss = loss.0;
         self.stats.decoder_loss = loss.1;

@@ -59,20 +59,45 @@ impl Robot {
     }
 }
 
-/// MuJoCo appends warnings (half_cheetah.xml's deprecated `settotalmass`) to
-/// `MUJOCO_LOG.TXT` in the working directory by default; keep them on stderr only.
+/// MuJoCo's messages go to this program's log (tracing, target `mujoco`) instead of its
+/// default console and `MUJOCO_LOG.TXT` output, all but one: half_cheetah.xml (Gymnasium's
+/// HalfCheetah-v5 model, kept as it is for parity) uses the deprecated `settotalmass`, and
+/// MuJoCo warns about it on every load, which says nothing a user can act on.
 fn configure_logging() {
     static ONCE: std::sync::Once = std::sync::Once::new();
     ONCE.call_once(|| {
-        let config = mujoco_rs::wrappers::mj_logging::log_config().with_logto_file(false);
         // SAFETY: every MuJoCo object of this process is made through `Robot::model`, which
         // runs this first; `call_once` blocks every other caller until it returns, so no
-        // thread uses MuJoCo while the global configuration is written.
+        // thread uses MuJoCo while the handler is installed.
         #[allow(unsafe_code)]
         unsafe {
-            mujoco_rs::wrappers::mj_logging::set_log_config(config)
+            mujoco_rs::logging::set_log_handler(log_mujoco_message)
         };
     });
+}
+
+/// Whether a MuJoCo message is the known `settotalmass` deprecation warning.
+fn is_settotalmass_warning(text: &str) -> bool {
+    text.contains("settotalmass")
+}
+
+/// MuJoCo's log handler: its messages as tracing events (it must not panic: it runs across
+/// the C boundary).
+fn log_mujoco_message(message: &mujoco_rs::wrappers::mj_logging::MjLogMessage) {
+    use mujoco_rs::wrappers::mj_logging::MjtLogLevel;
+    let subject = message.subject();
+    let body = message.body().unwrap_or_default();
+    if is_settotalmass_warning(subject) || is_settotalmass_warning(body) {
+        return;
+    }
+    match message.level() {
+        MjtLogLevel::mjLOG_ERROR => tracing::error!(target: "mujoco", "{subject} {body}"),
+        MjtLogLevel::mjLOG_WARNING => tracing::warn!(target: "mujoco", "{subject} {body}"),
+        // the handler enables every info topic; they are debugging detail here
+        MjtLogLevel::mjLOG_INFO | MjtLogLevel::mjLOG_DEBUG => {
+            tracing::debug!(target: "mujoco", "{subject} {body}");
+        }
+    }
 }
 
 /// Ant-v5's constants (Gymnasium defaults).

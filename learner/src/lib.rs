@@ -29,7 +29,9 @@ pub mod synthetic;
 pub mod tensorboard;
 
 pub use jsae_proto::settings::{PpoConfig, UpdatePath};
-pub use metrics::{CsvMetrics, MetricsSink, MetricsTable, Scalar, UPDATE_COLUMNS, update_scalars};
+pub use metrics::{
+    CsvMetrics, MetricsSink, MetricsTable, ResumePoint, Scalar, UPDATE_COLUMNS, update_scalars,
+};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport, UpdateMetrics,

@@ -171,6 +171,40 @@ pub struct MetricsReadError {
     source: csv::Error,
 }
 
+/// Where a stopped run goes on from (`jsae train --resume`): the env steps and wall seconds
+/// of its last metrics.csv row; zero for a run without rows.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct ResumePoint {
+    /// Env steps of all actors at the last update.
+    pub env_steps: u64,
+    /// Wall seconds of the run at the last update.
+    pub wall_seconds: f64,
+}
+
+impl ResumePoint {
+    /// The last row of `run`'s metrics.csv (zero where there is none).
+    pub fn of(run: &jsae_proto::run_dir::RunDir) -> Self {
+        let Ok(table) = MetricsTable::read(&run.metrics_csv()) else {
+            return Self::default();
+        };
+        let last = |name: &str| table.column(name).last().copied().flatten();
+        Self {
+            env_steps: last("env_steps").map_or(0, |s| s as u64),
+            wall_seconds: last("wall_seconds").unwrap_or(0.0),
+        }
+    }
+
+    /// The start instant a resumed process measures wall time from, so that it counts on
+    /// from this point's wall seconds.
+    pub fn started(&self) -> std::time::Instant {
+        let now = std::time::Instant::now();
+        now.checked_sub(std::time::Duration::from_secs_f64(
+            self.wall_seconds.max(0.0),
+        ))
+        .unwrap_or(now)
+    }
+}
+
 /// A metrics file read back: its column names and its rows (empty cells are `None`; a cell
 /// that is no number too).
 #[derive(Debug, Clone, PartialEq, Default)]

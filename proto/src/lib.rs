@@ -18,6 +18,7 @@
 
 mod batch;
 pub mod client;
+pub mod logging;
 mod messages;
 pub mod net;
 pub mod run_dir;

@@ -141,19 +141,6 @@ pub fn check_url(flag: &str, url: &str) -> Result<(), String> {
     Ok(())
 }
 
-/// Log lines on stderr for a service process (`RUST_LOG` filters; `info` by default).
-pub fn init_logging() {
-    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
-        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("info"));
-    // colour only for a person at a terminal: not in redirected output or logs/*.log
-    let ansi = std::io::IsTerminal::is_terminal(&std::io::stderr());
-    let _ = tracing_subscriber::fmt()
-        .with_env_filter(filter)
-        .with_writer(std::io::stderr)
-        .with_ansi(ansi)
-        .try_init();
-}
-
 /// A future that resolves once `stopping` turns true (or its sender is gone).
 pub fn stopped(
     stopping: &tokio::sync::watch::Receiver<bool>,
@@ -332,7 +319,7 @@ where
             return ExitCode::from(2);
         }
     };
-    init_logging();
+    crate::logging::init_logging();
     let runtime = match runtime() {
         Ok(r) => r,
         Err(e) => {

@@ -92,6 +92,38 @@ impl RunDir {
     pub fn checkpoints(&self) -> Checkpoints {
         Checkpoints::new(self.root.join("checkpoints"))
     }
+
+    /// Whether the directory exists and holds anything: a fresh `jsae train` refuses such a
+    /// directory unless `--force`, so an older run's checkpoints never mix with a new one's.
+    pub fn is_occupied(&self) -> bool {
+        std::fs::read_dir(&self.root).is_ok_and(|mut entries| entries.next().is_some())
+    }
+
+    /// Removes what a run writes here (the files and folders named above, plots in SVG and
+    /// PNG) and nothing else, for `jsae train --force`.
+    pub fn clear_run(&self) -> io::Result<()> {
+        for dir in [
+            self.logs(),
+            self.tensorboard(),
+            self.root.join("checkpoints"),
+        ] {
+            match std::fs::remove_dir_all(&dir) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+                _ => {}
+            }
+        }
+        let plots = ["learning_curve", "action_embeddings", "state_embeddings"]
+            .into_iter()
+            .flat_map(|stem| ["svg", "png"].map(|ext| self.root.join(format!("{stem}.{ext}"))));
+        let files = [self.config_toml(), self.metrics_csv(), self.summary_json()];
+        for file in files.into_iter().chain(plots) {
+            match std::fs::remove_file(&file) {
+                Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+                _ => {}
+            }
+        }
+        Ok(())
+    }
 }
 
 /// What a checkpoint holds.
@@ -241,6 +273,25 @@ mod tests {
         assert_eq!(c.read_latest(Weights::Embedding), None);
         c.clear_latest();
         assert_eq!(c.read_latest(Weights::Policy), None);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn clearing_a_run_removes_its_files_and_keeps_others() {
+        let dir = std::env::temp_dir().join(format!("jsae-run-clear-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let run = RunDir::new(&dir);
+        assert!(!run.is_occupied());
+        run.checkpoints()
+            .write_latest(Weights::Policy, 2, b"two")
+            .expect("write");
+        for f in [run.metrics_csv(), run.summary_json(), dir.join("notes.txt")] {
+            std::fs::write(f, "x").expect("write");
+        }
+        assert!(run.is_occupied());
+        run.clear_run().expect("clear");
+        assert!(!run.checkpoints().path().exists() && !run.metrics_csv().exists());
+        assert!(!run.summary_json().exists() && dir.join("notes.txt").exists());
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

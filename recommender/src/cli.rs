@@ -48,6 +48,9 @@ pub struct RecommenderArgs {
     /// starting) instead of exiting with code 2.
     #[arg(long, env = "JSAE_WAIT")]
     pub wait: bool,
+    /// `--metrics-listen`.
+    #[command(flatten)]
+    pub metrics: jsae_telemetry::MetricsFlag,
 }
 
 impl RecommenderArgs {
@@ -156,8 +159,11 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
                 run: args.run.clone().filter(|_| learned),
             };
             let listener = net::bind(&args.listen).await?;
+            let mut registry = jsae_telemetry::MetricsRegistry::default();
+            let metrics = jsae_telemetry::RecommenderMetrics::register(&mut registry);
+            jsae_telemetry::serve(&args.metrics, registry).await?;
             println!("jsae recommender listening on {}", listener.local_addr()?);
-            Ok(serve(Arc::new(rec), listener, sources, shutdown).await?)
+            Ok(serve(Arc::new(rec), listener, sources, metrics, shutdown).await?)
         },
         |()| {},
     )

@@ -11,6 +11,7 @@ use tokio::net::TcpListener;
 use tonic::{Request, Response, Status, Streaming};
 
 use jsae_proto::RpcError;
+use jsae_telemetry::RecommenderMetrics;
 
 use crate::scoring::{MAX_ERRORS_LISTED, MAX_SESSIONS_PER_CALL, Recommender};
 use crate::sources::{WeightSources, follow};
@@ -21,12 +22,27 @@ const STORE_BATCH: usize = 1024;
 #[derive(Debug, Clone)]
 pub struct RecommenderService {
     inner: Arc<Recommender>,
+    metrics: RecommenderMetrics,
 }
 
 impl RecommenderService {
-    /// Serves `inner`.
-    pub fn new(inner: Arc<Recommender>) -> Self {
-        Self { inner }
+    /// Serves `inner`, counting into `metrics`.
+    pub fn new(inner: Arc<Recommender>, metrics: RecommenderMetrics) -> Self {
+        Self { inner, metrics }
+    }
+}
+
+/// A status code as a metrics label.
+fn code_label(code: tonic::Code) -> &'static str {
+    use tonic::Code;
+    match code {
+        Code::Ok => "ok",
+        Code::InvalidArgument => "invalid_argument",
+        Code::ResourceExhausted => "resource_exhausted",
+        Code::Unavailable => "unavailable",
+        Code::Cancelled => "cancelled",
+        Code::Internal => "internal",
+        _ => "other",
     }
 }
 
@@ -48,8 +64,23 @@ impl pb::recommender_server::Recommender for RecommenderService {
         &self,
         request: Request<pb::RecommendRequest>,
     ) -> Result<Response<pb::RecommendResponse>, Status> {
+        let started = std::time::Instant::now();
         let r = request.into_inner();
-        let out = self.inner.recommend(&r.history, r.k)?;
+        let answered = self.inner.recommend(&r.history, r.k);
+        let seconds = started.elapsed().as_secs_f64();
+        let out = match answered {
+            Ok(out) => {
+                self.metrics
+                    .observe_recommend(seconds, "ok", Some(out.policy_version));
+                out
+            }
+            Err(e) => {
+                let status = Status::from(e);
+                self.metrics
+                    .observe_recommend(seconds, code_label(status.code()), None);
+                return Err(status);
+            }
+        };
         Ok(Response::new(pb::RecommendResponse {
             items: out
                 .items
@@ -63,6 +94,26 @@ impl pb::recommender_server::Recommender for RecommenderService {
     }
 
     async fn submit_sessions(
+        &self,
+        request: Request<Streaming<pb::Session>>,
+    ) -> Result<Response<pb::SubmitSummary>, Status> {
+        let answered = self.receive_sessions(request).await;
+        let (code, accepted, rejected) = match &answered {
+            Ok(summary) => (
+                "ok",
+                summary.get_ref().sessions_accepted,
+                summary.get_ref().sessions_rejected,
+            ),
+            Err(status) => (code_label(status.code()), 0, 0),
+        };
+        self.metrics.observe_submit(code, accepted, rejected);
+        answered
+    }
+}
+
+impl RecommenderService {
+    /// SubmitSessions itself (the trait method counts its outcome).
+    async fn receive_sessions(
         &self,
         request: Request<Streaming<pb::Session>>,
     ) -> Result<Response<pb::SubmitSummary>, Status> {
@@ -134,10 +185,12 @@ pub async fn serve(
     rec: Arc<Recommender>,
     listener: TcpListener,
     sources: WeightSources,
+    metrics: RecommenderMetrics,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let mut tasks = follow(&rec, &sources);
-    let server = pb::recommender_server::RecommenderServer::new(RecommenderService::new(rec))
+    let service = RecommenderService::new(rec, metrics);
+    let server = pb::recommender_server::RecommenderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
     let result = net::serve(server, listener, shutdown).await;

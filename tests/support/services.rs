@@ -96,6 +96,8 @@ pub async fn start_learner_on(
         logged: jsae_recommender::logged_purchases(config)
             .expect("the logged purchases")
             .map(std::sync::Arc::new),
+        resume: false,
+        metrics: Default::default(),
     };
     let handle = tokio::spawn(jsae_learner::service::serve(
         config.clone(),
@@ -130,6 +132,7 @@ pub fn start_actor(
         embedder: embedder.map(String::from),
         learner: learner.to_string(),
         record: None,
+        metrics: Default::default(),
     };
     let handle = tokio::spawn(jsae_actor::service::run(config.clone(), options, signal));
     Service {

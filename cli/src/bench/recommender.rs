@@ -133,6 +133,7 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
         rec.clone(),
         listener,
         WeightSources::default(),
+        Default::default(),
         async move {
             let _ = stop_rx.await;
         },

@@ -107,7 +107,12 @@ fn measure_in(root: &Path, env_steps: u64) -> anyhow::Result<Vec<ScalingRow>> {
                 env_steps,
                 root.join(format!("a{actors}-r{rollouts}")),
             );
-            launch::train_processes(&c, &crate::train::RunFiles::default(), &exe, &mut progress)?;
+            launch::train_processes(
+                &c,
+                &crate::train::RunOptions::default(),
+                &exe,
+                &mut progress,
+            )?;
             let (rate, lag, dropped) = steady_state(&c.out)?;
             rows.push(ScalingRow {
                 mode: "processes",

@@ -147,6 +147,8 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
         out: config.out.clone(),
         embedder: None,
         logged: None,
+        resume: false,
+        metrics: Default::default(),
     };
     let server = tokio::spawn(jsae_learner::service::serve(
         config.clone(),

@@ -10,10 +10,18 @@ use clap::Parser;
 #[derive(Parser, Debug)]
 #[command(name = "jsae", version, about = "JSAE-RL launcher and tools")]
 struct Cli {
+    /// Log lines as text (coloured only on a terminal) or JSON objects, one per line; the
+    /// services `jsae train` starts log the same way.
+    #[arg(long, global = true, value_enum, env = jsae_proto::logging::LOG_FORMAT_ENV)]
+    log_format: Option<jsae_proto::logging::LogFormat>,
     #[command(subcommand)]
     command: jsae_cli::commands::Command,
 }
 
 fn main() -> std::process::ExitCode {
-    jsae_cli::commands::run(Cli::parse().command)
+    let cli = Cli::parse();
+    if let Some(format) = cli.log_format {
+        jsae_proto::logging::choose_log_format(format);
+    }
+    jsae_cli::commands::run(cli.command)
 }

@@ -24,6 +24,42 @@ pub fn venv_python() -> PathBuf {
     PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
+/// GET `http://ADDR/metrics` (Prometheus text), the body after a 200 answer's headers.
+#[allow(dead_code, reason = "not every test crate scrapes metrics")]
+pub fn scrape_metrics(addr: &str) -> String {
+    use std::io::{Read, Write};
+    let mut stream = std::net::TcpStream::connect(addr).expect("connects");
+    stream
+        .set_read_timeout(Some(std::time::Duration::from_secs(10)))
+        .ok();
+    write!(
+        stream,
+        "GET /metrics HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .expect("asks");
+    let mut answer = String::new();
+    stream.read_to_string(&mut answer).expect("answer");
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
+    answer
+}
+
+/// The value of the sample `name` (with its labels, if any) in Prometheus text.
+#[allow(dead_code, reason = "not every test crate scrapes metrics")]
+pub fn metric_value(text: &str, name: &str) -> Option<f64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.trim().parse().ok())
+}
+
+/// A free loopback port (bound and released: another process may take it in between, which
+/// a test run makes unlikely).
+#[allow(dead_code, reason = "not every test crate needs a port")]
+pub fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free port")
+}
+
 /// Every scalar of metrics.csv is in `run/tensorboard/` as TensorBoard's own reader sees it
 /// (tag = column, step = env_steps, one point per non-empty cell, the same value), and the
 /// final evaluation under `eval/`.

@@ -63,6 +63,8 @@ pub struct Learner {
     version: u64,
     total_env_steps: u64,
     actor_steps: HashMap<u64, u64>,
+    /// Env steps of earlier processes of a resumed run, whose actors count from zero again.
+    steps_before: u64,
     embedding_version: u64,
     pending: Vec<RolloutFragment>,
     pending_steps: usize,
@@ -103,6 +105,7 @@ impl Learner {
             version: 0,
             total_env_steps,
             actor_steps: HashMap::new(),
+            steps_before: 0,
             embedding_version: 0,
             pending: Vec::new(),
             pending_steps: 0,
@@ -166,7 +169,18 @@ impl Learner {
 
     /// Env steps of all actors so far.
     pub fn env_steps(&self) -> u64 {
-        self.actor_steps.values().sum()
+        self.steps_before + self.actor_steps.values().sum::<u64>()
+    }
+
+    /// Counts on from `steps` env steps taken before (`jsae train --resume`: the run's
+    /// actors start again from zero).
+    pub fn count_steps_from(&mut self, steps: u64) {
+        self.steps_before = steps;
+    }
+
+    /// The newest embedding version of the fragments (0: none yet, or no embedding).
+    pub fn embedding_version(&self) -> u64 {
+        self.embedding_version
     }
 
     /// Lag statistics over the run.

@@ -29,10 +29,11 @@ use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{client, net};
+use jsae_telemetry::{LearnerMetrics, MetricsFlag, MetricsRegistry};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{Learner, LoggedPurchases, RunMetrics, Summary, UPDATE_COLUMNS};
+use crate::{Learner, LoggedPurchases, ResumePoint, RunMetrics, Summary, UPDATE_COLUMNS};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
 
@@ -52,6 +53,12 @@ pub struct LearnerOptions {
     /// Logged purchases a fresh run's policy learns from before its first snapshot, where
     /// the settings ask (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`).
     pub logged: Option<Arc<LoggedPurchases>>,
+    /// A stopped run continued (`jsae train --resume`): its actors count from zero again, so
+    /// the learner counts on from the last metrics.csv row's env steps and wall time.
+    pub resume: bool,
+    /// The Prometheus families the learner thread updates (served where `--metrics-listen`
+    /// asks).
+    pub metrics: LearnerMetrics,
 }
 
 /// Reads a run's logged purchases where its settings ask for them (None where they do not);
@@ -83,11 +90,24 @@ pub async fn serve(
     let out = RunDir::new(&options.out);
     std::fs::create_dir_all(out.checkpoints().path())?;
     let mut learner = Learner::for_run(&config);
+    let mut started = Instant::now();
     let resumed = match latest_checkpoint(&out) {
         Some(s) => {
             learner.restore(&s)?;
             tracing::info!("resuming from the policy checkpoint, version {}", s.version);
+            if options.resume {
+                let point = ResumePoint::of(&out);
+                learner.count_steps_from(point.env_steps);
+                started = point.started();
+                tracing::info!("the run goes on from {} env steps", point.env_steps);
+            }
             true
+        }
+        None if options.resume => {
+            anyhow::bail!(
+                "--resume: {} holds no policy checkpoint",
+                out.checkpoints().path().display()
+            )
         }
         None => false,
     };
@@ -136,9 +156,10 @@ pub async fn serve(
         publish: publish_tx,
         version,
         embedding: None,
-        started: Instant::now(),
+        started,
         fresh,
         logged: options.logged.clone(),
+        telemetry: options.metrics.clone(),
     };
     let (done_tx, done_rx) = tokio::sync::oneshot::channel::<()>();
     let thread = std::thread::Builder::new()
@@ -201,6 +222,15 @@ pub struct LearnerArgs {
     /// Run directory.
     #[arg(long, env = "JSAE_OUT")]
     pub out: PathBuf,
+    /// Continue a stopped run whose actors start again from zero (`jsae train --resume`
+    /// passes it): resume from the policy checkpoint and count on from the last
+    /// metrics.csv row's env steps and wall time. Without it a restarted learner resumes
+    /// from its checkpoint too, but counts the steps its (still running) actors report.
+    #[arg(long)]
+    pub resume: bool,
+    /// `--metrics-listen`.
+    #[command(flatten)]
+    pub metrics: MetricsFlag,
 }
 
 /// Runs the learner process: exit 0 at the end of the run (or on SIGINT/SIGTERM), 2 for a bad
@@ -223,11 +253,16 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
         config,
         |(config, embedder, logged), shutdown| async move {
             let listener = net::bind(&args.listen.listen).await?;
+            let mut registry = MetricsRegistry::default();
+            let metrics = LearnerMetrics::register(&mut registry);
+            jsae_telemetry::serve(&args.metrics, registry).await?;
             println!("jsae-learner listening on {}", listener.local_addr()?);
             let options = LearnerOptions {
                 out: args.out,
                 embedder,
                 logged,
+                resume: args.resume,
+                metrics,
             };
             Ok(serve(config, listener, options, shutdown).await?)
         },

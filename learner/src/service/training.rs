@@ -12,6 +12,7 @@ use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::settings::TrainConfig;
 use jsae_proto::wire::pb;
 use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
+use jsae_telemetry::{LearnerMetrics, LearnerSample};
 use tokio::sync::{mpsc, watch};
 
 use super::grpc::{Input, PolicyState};
@@ -36,6 +37,7 @@ pub(super) struct LearnerLoop {
     /// the settings ask) before the first snapshot, which the actors wait for.
     pub(super) fresh: bool,
     pub(super) logged: Option<Arc<LoggedPurchases>>,
+    pub(super) telemetry: LearnerMetrics,
 }
 
 impl LearnerLoop {
@@ -83,11 +85,21 @@ impl LearnerLoop {
                                 report.metrics.return_mean.unwrap_or(f64::NAN),
                                 report.metrics.policy_lag_mean
                             );
+                            self.telemetry
+                                .observe_update(report.metrics.policy_lag_mean);
                             self.publish_snapshot(report.snapshot)?;
                         }
                         Ok(_) => {}
                         Err(e) => tracing::warn!("fragment refused: {e}"),
                     }
+                    self.telemetry.observe_fragment(&LearnerSample {
+                        env_steps: self.learner.env_steps(),
+                        updates: self.learner.updates(),
+                        policy_version: self.learner.version(),
+                        embedding_version: self.learner.embedding_version(),
+                        dropped: self.learner.dropped(),
+                        queue_depth: queue.len(),
+                    });
                     if self.learner.env_steps() >= self.config.env_steps {
                         evaluating = true;
                         tracing::info!(

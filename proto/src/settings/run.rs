@@ -44,7 +44,10 @@ pub struct TrainConfig {
     pub device: DeviceKind,
     /// Deterministic evaluation episodes at the end.
     pub eval_episodes: usize,
-    /// Run directory.
+    /// Run directory: `--out` or the default `runs/ENV-ALGO-seedN`, never a setting (not
+    /// written to config.toml, so a run's config passed back with another seed does not
+    /// write into the old run's directory).
+    #[serde(skip)]
     pub out: PathBuf,
     /// Run actor, embedder and learner in this process, in lockstep (deterministic for a
     /// seed), instead of as separate service processes talking gRPC over loopback.
@@ -117,8 +120,10 @@ pub struct ConfigFile {
     pub device: Option<DeviceKind>,
     /// See [`TrainConfig`].
     pub eval_episodes: Option<usize>,
-    /// See [`TrainConfig`].
-    pub out: Option<PathBuf>,
+    /// Written into config.toml by older versions and ignored: the run directory is
+    /// `--out`'s (or the default), never the settings'.
+    #[serde(rename = "out")]
+    pub _ignored_out: Option<toml::Value>,
     /// See [`TrainConfig`].
     pub one_process: Option<bool>,
     /// See [`TrainConfig`].
@@ -362,7 +367,6 @@ impl TrainConfig {
         c.policy_wait_ms = parsed.policy_wait_ms.unwrap_or(c.policy_wait_ms);
         c.device = parsed.device.unwrap_or(c.device);
         c.eval_episodes = parsed.eval_episodes.unwrap_or(c.eval_episodes);
-        c.out = parsed.out.unwrap_or(c.out);
         c.one_process = parsed.one_process.unwrap_or(c.one_process);
         c.init_from = parsed.init_from.or(c.init_from);
         let text = text.as_deref();
