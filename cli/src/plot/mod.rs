@@ -1,375 +1,200 @@
-//! SVG plots of a run: the learning curve (return and success rate against env steps) and,
-//! for the gridworld, the learned action embeddings coloured by the displacement each
-//! action causes and the learned state embeddings coloured by position (the paper's
-//! Figure 2d and 2b).
+//! The plots of a run, drawn by plotters as SVG and PNG twins (`learning_curve.svg` and
+//! `learning_curve.png`, ...; the font, the colours and the double drawing are
+//! `jsae_experiments::figures`'), and `jsae plot`.
+//!
+//! Layout: `curves` (the learning curve of a run with its final evaluation, and several runs
+//! in one figure as a mean with a band), `embeddings` (for the gridworld, the learned action
+//! embeddings coloured by the displacement each action causes and the learned state
+//! embeddings coloured by position, the paper's Figures 2d and 2b, each with a colour key),
+//! `weights` (`summary.json` and which embedding checkpoint the plots are drawn from).
 
-use std::fmt::Write as _;
-use std::path::PathBuf;
+mod curves;
+mod embeddings;
+#[cfg(test)]
+mod tests;
+mod weights;
 
+use std::io;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::Args;
 use jsae_embedder::Embedding;
+use jsae_experiments::figures::{self, Drawing};
 use jsae_learner::MetricsTable;
-use jsae_nn::{BurnDevice, RecordError};
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::{EmbeddingSnapshot, StateBatch};
-
-use jsae_envs::EnvName;
-use jsae_envs::gridworld::{Gridworld, action_motions};
+use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::TrainConfig;
 
-const W: f64 = 640.0;
-const H: f64 = 400.0;
-const PAD: f64 = 50.0;
+pub use curves::{Combined, Curve, Eval, LearningCurve, RunCurves};
+pub use embeddings::{ColourKey, Scatter};
+pub use weights::{
+    latest_embedding, load_embedding, load_latest_embedding, read_summary, run_embedding,
+};
 
-struct Frame {
-    x0: f64,
-    x1: f64,
-    y0: f64,
-    y1: f64,
+/// `jsae plot`: the plots of one or more run directories, and with several runs (or
+/// `--to`) one figure of them all.
+#[derive(Args, Debug, Clone, Default)]
+pub struct PlotArgs {
+    /// Run directories (each holding config.toml and metrics.csv).
+    #[arg(value_name = "RUN")]
+    pub runs: Vec<PathBuf>,
+    /// A run directory, the same as RUN (repeatable).
+    #[arg(long = "out", value_name = "DIR")]
+    pub out: Vec<PathBuf>,
+    /// Where the figure of all the runs goes: FILE_STEM.svg and FILE_STEM.png (per
+    /// environment and algorithm, the mean over its runs with a band from the lowest to the
+    /// highest run). Drawn for several runs, and for one when this is given [default:
+    /// learning_curves in the first run's parent folder].
+    #[arg(long, value_name = "FILE_STEM")]
+    pub to: Option<PathBuf>,
 }
 
-impl Frame {
-    fn fit(xs: impl Iterator<Item = f64> + Clone, ys: impl Iterator<Item = f64> + Clone) -> Self {
-        let lo_hi = |v: &mut dyn Iterator<Item = f64>| {
-            v.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), x| {
-                (a.min(x), b.max(x))
-            })
-        };
-        let (x0, x1) = lo_hi(&mut xs.clone());
-        let (y0, y1) = lo_hi(&mut ys.clone());
-        let widen = |a: f64, b: f64| {
-            if (b - a).abs() < 1e-12 {
-                (a - 0.5, b + 0.5)
-            } else {
-                (a, b)
+/// Runs `jsae plot`: prints each file written; exits 2 with a one-line reason for a
+/// missing run directory, one without metrics.csv or with unreadable settings, 1 when
+/// drawing fails.
+pub fn main(args: &PlotArgs) -> ExitCode {
+    match plot(args) {
+        Ok(paths) => {
+            for p in paths {
+                println!("plot: {}", p.display());
             }
-        };
-        let (x0, x1) = widen(x0, x1);
-        let (y0, y1) = widen(y0, y1);
-        Self { x0, x1, y0, y1 }
-    }
-
-    fn px(&self, x: f64) -> f64 {
-        PAD + (x - self.x0) / (self.x1 - self.x0) * (W - 2.0 * PAD)
-    }
-
-    fn py(&self, y: f64) -> f64 {
-        H - PAD - (y - self.y0) / (self.y1 - self.y0) * (H - 2.0 * PAD)
-    }
-
-    fn axes(&self, svg: &mut String, title: &str, xlabel: &str, ylabel: &str) {
-        let _ = write!(
-            svg,
-            r#"<rect x="{PAD}" y="{PAD}" width="{}" height="{}" fill="none" stroke="black"/>"#,
-            W - 2.0 * PAD,
-            H - 2.0 * PAD
-        );
-        let _ = write!(
-            svg,
-            r#"<text x="{}" y="25" text-anchor="middle" font-size="16">{title}</text>"#,
-            W / 2.0
-        );
-        let _ = write!(
-            svg,
-            r#"<text x="{}" y="{}" text-anchor="middle" font-size="12">{xlabel}</text>"#,
-            W / 2.0,
-            H - 12.0
-        );
-        let _ = write!(
-            svg,
-            r#"<text x="14" y="{}" text-anchor="middle" font-size="12" transform="rotate(-90 14 {})">{ylabel}</text>"#,
-            H / 2.0,
-            H / 2.0
-        );
-        for (v, anchor, x, y) in [
-            (self.x0, "start", PAD, H - PAD + 15.0),
-            (self.x1, "end", W - PAD, H - PAD + 15.0),
-            (self.y0, "end", PAD - 4.0, H - PAD),
-            (self.y1, "end", PAD - 4.0, PAD + 10.0),
-        ] {
-            let _ = write!(
-                svg,
-                r#"<text x="{x}" y="{y}" text-anchor="{anchor}" font-size="11">{}</text>"#,
-                fmt_num(v)
-            );
+            ExitCode::SUCCESS
+        }
+        Err((code, reason)) => {
+            eprintln!("jsae plot: {reason}");
+            ExitCode::from(code)
         }
     }
 }
 
-fn fmt_num(v: f64) -> String {
-    if v.abs() >= 1000.0 {
-        format!("{v:.0}")
-    } else {
-        format!("{v:.2}")
+/// What `jsae plot` does: the files written, or the exit code and the reason.
+fn plot(args: &PlotArgs) -> Result<Vec<PathBuf>, (u8, String)> {
+    let dirs: Vec<&PathBuf> = args.runs.iter().chain(&args.out).collect();
+    if dirs.is_empty() {
+        return Err((
+            2,
+            "no run directory given (jsae plot RUN... or --out DIR)".into(),
+        ));
     }
-}
-
-fn svg_open() -> String {
-    format!(
-        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{H}" viewBox="0 0 {W} {H}"><rect width="100%" height="100%" fill="white"/>"#
-    )
-}
-
-fn polyline(svg: &mut String, frame: &Frame, pts: &[(f64, f64)], colour: &str) {
-    let path: Vec<String> = pts
-        .iter()
-        .map(|(x, y)| format!("{:.1},{:.1}", frame.px(*x), frame.py(*y)))
-        .collect();
-    let _ = write!(
-        svg,
-        r#"<polyline fill="none" stroke="{colour}" stroke-width="1.5" points="{}"/>"#,
-        path.join(" ")
-    );
-}
-
-/// The learning curve of a run directory's `metrics.csv`.
-pub fn learning_curve(metrics: &MetricsTable, title: &str) -> String {
-    let ret = metrics.series("env_steps", "return_mean");
-    let success = metrics.series("env_steps", "success_rate");
-    let mut svg = svg_open();
-    let frame = Frame::fit(
-        ret.iter().map(|p| p.0).chain(std::iter::once(0.0)),
-        ret.iter().chain(&success).map(|p| p.1),
-    );
-    frame.axes(
-        &mut svg,
-        title,
-        "env steps",
-        "training episode return (blue), success rate (green)",
-    );
-    polyline(&mut svg, &frame, &ret, "#1f77b4");
-    polyline(&mut svg, &frame, &success, "#2ca02c");
-    svg.push_str("</svg>\n");
-    svg
-}
-
-/// Scatter of 2-D points with one colour each.
-pub fn scatter(
-    points: &[(f64, f64)],
-    colours: &[(f64, f64, f64)],
-    title: &str,
-    xl: &str,
-    yl: &str,
-) -> String {
-    let mut svg = svg_open();
-    let frame = Frame::fit(points.iter().map(|p| p.0), points.iter().map(|p| p.1));
-    frame.axes(&mut svg, title, xl, yl);
-    for (p, c) in points.iter().zip(colours) {
-        let to = |v: f64| (v.clamp(0.0, 1.0) * 255.0).round() as u8;
-        let _ = write!(
-            svg,
-            r##"<circle cx="{:.1}" cy="{:.1}" r="3" fill="#{:02x}{:02x}{:02x}"/>"##,
-            frame.px(p.0),
-            frame.py(p.1),
-            to(c.0),
-            to(c.1),
-            to(c.2)
-        );
+    let mut runs = Vec::new();
+    for d in dirs {
+        let run = RunDir::new(d);
+        if !d.is_dir() {
+            return Err((2, format!("{}: no such directory", d.display())));
+        }
+        if !run.metrics_csv().is_file() {
+            return Err((
+                2,
+                format!("{}: no metrics.csv (not a run directory)", d.display()),
+            ));
+        }
+        let config = TrainConfig::from_layers(None, None, Some(&run.config_toml()))
+            .map_err(|e| (2, e.to_string()))?;
+        runs.push((run, config));
     }
-    svg.push_str("</svg>\n");
-    svg
+    figures::font().map_err(|reason| (1, reason))?;
+    let failed = |run: &RunDir| {
+        let dir = run.path().display().to_string();
+        move |e: io::Error| (1, format!("{dir}: {e}"))
+    };
+    let mut written = Vec::new();
+    for (run, config) in &runs {
+        written.extend(plot_run_dir(run, config).map_err(failed(run))?);
+    }
+    if runs.len() > 1 || args.to.is_some() {
+        let mut curves = Vec::new();
+        for (run, config) in &runs {
+            let metrics = MetricsTable::read(&run.metrics_csv())
+                .map_err(|e| failed(run)(io::Error::other(e)))?;
+            let group = format!("{} / {}", config.env.as_str(), config.algo.as_str());
+            curves.push(RunCurves::new(group, &metrics));
+        }
+        let stem = args
+            .to
+            .clone()
+            .unwrap_or_else(|| default_combined_stem(runs[0].0.path()));
+        let paths =
+            figures::draw_twice(&Combined::new(&curves), &stem).map_err(|e| (1, e.to_string()))?;
+        written.extend(paths);
+    }
+    Ok(written)
 }
 
-/// Writes the plots of a finished run into its directory; returns their paths.
+/// `learning_curves` beside the run directory `run` (in its parent folder).
+fn default_combined_stem(run: &Path) -> PathBuf {
+    run.parent()
+        .unwrap_or(Path::new(""))
+        .join("learning_curves")
+}
+
+/// Draws `drawing` as `svg` and as its PNG twin (the same name ending in `.png`).
+fn draw_beside(drawing: &impl Drawing, svg: &Path) -> io::Result<Vec<PathBuf>> {
+    figures::draw_twice(drawing, &svg.with_extension("")).map_err(io::Error::other)
+}
+
+/// Writes the plots of a run into its directory, each as SVG and PNG; returns their paths.
+/// The learning curve (with the final evaluation of `summary.json`, once it is there) and,
+/// for the gridworlds, the scatters of `embedding` (titled with its version). On a machine
+/// without a TrueType font nothing is drawn (a warning, not an error: a finished run is not
+/// lost to a missing font).
 pub fn write_run_plots(
     dir: &RunDir,
     config: &TrainConfig,
     embedding: Option<&Embedding>,
-) -> std::io::Result<Vec<PathBuf>> {
-    let mut written = Vec::new();
-    let metrics = MetricsTable::read(&dir.metrics_csv()).map_err(std::io::Error::other)?;
+) -> io::Result<Vec<PathBuf>> {
+    if let Err(reason) = figures::font() {
+        tracing::warn!("{}: no plots drawn: {reason}", dir.path().display());
+        return Ok(Vec::new());
+    }
+    let metrics = MetricsTable::read(&dir.metrics_csv()).map_err(io::Error::other)?;
+    let summary = read_summary(dir)?;
     let title = format!(
         "{} / {} / seed {}",
         config.env.as_str(),
         config.algo.as_str(),
         config.seed
     );
-    let path = dir.learning_curve_svg();
-    std::fs::write(&path, learning_curve(&metrics, &title))?;
-    written.push(path);
-    let gridworld = matches!(config.env, EnvName::Gridworld | EnvName::GridworldDiscrete);
-    let table = embedding
-        .filter(|e| gridworld && e.action_dim() >= 2)
-        .and_then(|e| Some((e.action_table()?, e.action_dim())));
-    if let Some((table, d)) = table {
-        let motions = action_motions(config.environment.gridworld.actuators);
-        let points: Vec<(f64, f64)> = table
-            .chunks_exact(d)
-            .map(|r| (f64::from(r[0]), f64::from(r[1])))
-            .collect();
-        let colours: Vec<(f64, f64, f64)> = motions
-            .iter()
-            .map(|m| ((m[0] + 1.0) / 2.0, (m[1] + 1.0) / 2.0, 0.5))
-            .collect();
-        let path = dir.action_embeddings_svg();
-        let title = "action embeddings g(a), coloured by displacement";
-        std::fs::write(&path, scatter(&points, &colours, title, "e1", "e2"))?;
-        written.push(path);
-    }
-    let embeds_states = config.algo.representation().embeds_states();
-    if let Some(embedding) = embedding.filter(|_| gridworld && embeds_states) {
-        let (states, positions) = gridworld_cells(config);
-        let mut phi = Vec::new();
-        embedding.embed_states(&states, &mut phi);
-        let (points, axes) = principal_plane(&phi, embedding.state_dim());
-        let colours: Vec<(f64, f64, f64)> = positions.iter().map(|p| (p[0], p[1], 0.5)).collect();
-        let path = dir.state_embeddings_svg();
-        let title = "state embeddings phi(s) of the cell centres, coloured by position";
-        std::fs::write(&path, scatter(&points, &colours, title, axes.0, axes.1))?;
-        written.push(path);
+    let curve = LearningCurve::new(&metrics, summary.as_ref(), title);
+    let mut written = draw_beside(&curve, &dir.learning_curve_svg())?;
+    for (scatter, svg) in embeddings::embedding_scatters(dir, config, embedding) {
+        written.extend(draw_beside(&scatter, &svg)?);
     }
     Ok(written)
 }
 
-/// Every cell centre of the gridworld's `bins x bins` lattice, as the run's environment
-/// encodes it (a one-hot cell for gridworld-discrete, the position otherwise), and its
-/// position.
-fn gridworld_cells(config: &TrainConfig) -> (StateBatch, Vec<[f64; 2]>) {
-    let g = &config.environment.gridworld;
-    let bins = g.bins.max(1);
-    let positions: Vec<[f64; 2]> = (0..bins * bins)
-        .map(|i| {
-            let centre = |b: u32| (f64::from(b) + 0.5) / f64::from(bins);
-            [centre(i / bins), centre(i % bins)]
-        })
-        .collect();
-    let states = if config.env == EnvName::GridworldDiscrete {
-        let world = Gridworld::new(g.clone(), true);
-        StateBatch::Categorical {
-            factors: 1,
-            data: positions.iter().map(|&p| world.state_index(p)).collect(),
-        }
-    } else {
-        StateBatch::Real {
-            dim: 2,
-            data: positions.iter().flatten().map(|&v| v as f32).collect(),
+/// Draws the plots of a run directory written by separate services (or by hand): the
+/// learning curve from `metrics.csv` and `summary.json`, and the embedding scatters of the
+/// embedding version the summary names ([`run_embedding`]: the newest checkpoint only while
+/// there is no summary yet), so an older run's checkpoints left in the directory are not
+/// drawn.
+pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> io::Result<Vec<PathBuf>> {
+    let embedding = match run_embedding(dir)? {
+        Some(snapshot) => match load_embedding(&snapshot, config) {
+            Ok(embedding) => Some(embedding),
+            Err(e) => {
+                tracing::warn!(
+                    "{}: embedding version {} does not load with the run's settings ({e}); \
+                     no embedding plots",
+                    dir.path().display(),
+                    snapshot.version
+                );
+                None
+            }
+        },
+        None => {
+            if embeddings::plots_embeddings(config) && config.algo.representation().needs_embedder()
+            {
+                let wanted = match read_summary(dir)? {
+                    Some(s) => format!("version {} (summary.json)", s.embedding_version),
+                    None => "checkpoint".into(),
+                };
+                tracing::warn!(
+                    "{}: no embedding plots: checkpoints/ holds no embedding {wanted}",
+                    dir.path().display()
+                );
+            }
+            None
         }
     };
-    (states, positions)
-}
-
-/// Rows of `data` (`[n, m]`) as 2-D points: the first two coordinates when `m <= 2`, else
-/// the projections on the two leading principal components (power iteration on the
-/// covariance, the second after deflating the first); also the axes' labels.
-fn principal_plane(data: &[f32], m: usize) -> (Vec<(f64, f64)>, (&'static str, &'static str)) {
-    let rows: Vec<Vec<f64>> = data
-        .chunks_exact(m.max(1))
-        .map(|r| r.iter().map(|&v| f64::from(v)).collect())
-        .collect();
-    if m <= 2 {
-        let at = |r: &Vec<f64>, i: usize| r.get(i).copied().unwrap_or(0.0);
-        let points = rows.iter().map(|r| (at(r, 0), at(r, 1))).collect();
-        return (points, ("x1", "x2"));
-    }
-    let n = rows.len().max(1) as f64;
-    let mean: Vec<f64> = (0..m)
-        .map(|j| rows.iter().map(|r| r[j]).sum::<f64>() / n)
-        .collect();
-    let mut cov = vec![0.0; m * m];
-    for r in &rows {
-        for i in 0..m {
-            for j in 0..m {
-                cov[i * m + j] += (r[i] - mean[i]) * (r[j] - mean[j]) / n;
-            }
-        }
-    }
-    let first = leading_eigenvector(&cov, m);
-    let lambda: f64 = (0..m)
-        .map(|i| first[i] * (0..m).map(|j| cov[i * m + j] * first[j]).sum::<f64>())
-        .sum();
-    for i in 0..m {
-        for j in 0..m {
-            cov[i * m + j] -= lambda * first[i] * first[j];
-        }
-    }
-    let second = leading_eigenvector(&cov, m);
-    let project = |r: &Vec<f64>, v: &[f64]| (0..m).map(|j| (r[j] - mean[j]) * v[j]).sum::<f64>();
-    let points = rows
-        .iter()
-        .map(|r| (project(r, &first), project(r, &second)))
-        .collect();
-    (points, ("PC 1", "PC 2"))
-}
-
-/// The unit eigenvector of the largest eigenvalue of a symmetric `m x m` matrix, by power
-/// iteration from a fixed start.
-fn leading_eigenvector(a: &[f64], m: usize) -> Vec<f64> {
-    let mut v: Vec<f64> = (0..m).map(|i| 1.0 + i as f64 / m as f64).collect();
-    for _ in 0..500 {
-        let w: Vec<f64> = (0..m)
-            .map(|i| (0..m).map(|j| a[i * m + j] * v[j]).sum())
-            .collect();
-        let norm = w.iter().map(|x| x * x).sum::<f64>().sqrt();
-        if norm < 1e-12 {
-            break;
-        }
-        v = w.into_iter().map(|x| x / norm).collect();
-    }
-    v
-}
-
-/// The newest embedding checkpoint of a run, if any.
-pub fn latest_embedding(dir: &RunDir) -> Option<EmbeddingSnapshot> {
-    let (version, path) = dir.checkpoints().newest(Weights::Embedding)?;
-    Some(EmbeddingSnapshot {
-        version,
-        bytes: std::fs::read(path).ok()?,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-        action_structure: None,
-    })
-}
-
-/// The newest embedding checkpoint of a run, loaded with the run's settings (None: the run
-/// has no embedding checkpoint).
-pub fn load_latest_embedding(
-    dir: &RunDir,
-    config: &TrainConfig,
-) -> Option<Result<Embedding, RecordError>> {
-    let snapshot = latest_embedding(dir)?;
-    let (states, actions) = config.spaces();
-    Some(Embedding::from_snapshot(
-        &config.embedding,
-        config.algo.representation(),
-        &states,
-        &actions,
-        &snapshot,
-        &config.device.device(),
-    ))
-}
-
-/// Draws the plots of a run directory written by separate services (or by hand): the learning
-/// curve from `metrics.csv`, and the action embeddings of the newest embedding checkpoint.
-pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> std::io::Result<Vec<PathBuf>> {
-    let embedding = load_latest_embedding(dir, config).and_then(Result::ok);
     write_run_plots(dir, config, embedding.as_ref())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn principal_plane_finds_the_directions_of_spread() {
-        // Points on a line in 3-D plus a smaller spread along a second, orthogonal direction.
-        let mut data = Vec::new();
-        for t in 0..10 {
-            let (t, u) = (f64::from(t), if t % 2 == 0 { 0.5 } else { -0.5 });
-            data.extend([t + u, 2.0 * t, -t + u].map(|v| v as f32));
-        }
-        let (points, labels) = principal_plane(&data, 3);
-        assert_eq!(labels, ("PC 1", "PC 2"));
-        let spread = |i: usize| {
-            let v: Vec<f64> = points
-                .iter()
-                .map(|p| if i == 0 { p.0 } else { p.1 })
-                .collect();
-            let mean = v.iter().sum::<f64>() / v.len() as f64;
-            v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / v.len() as f64
-        };
-        // The line's direction (1, 2, -1)/sqrt(6) carries 6 * var(t) = 49.5; the rest 0.5.
-        assert!((spread(0) - 49.5).abs() < 0.1, "{}", spread(0));
-        assert!((spread(1) - 0.5).abs() < 0.05, "{}", spread(1));
-        let (flat, labels) = principal_plane(&[1.0, 2.0, 3.0, 4.0], 2);
-        assert_eq!((flat, labels), (vec![(1.0, 2.0), (3.0, 4.0)], ("x1", "x2")));
-    }
 }
