@@ -77,12 +77,9 @@ pub enum Command {
     /// Evaluate a run's newest checkpoints (or a given policy checkpoint) with the
     /// deterministic and the sampled policy; prints JSON.
     Eval(crate::eval::EvalArgs),
-    /// Draw the plots of a run directory (one the services wrote, for example by hand).
-    Plot {
-        /// The run directory (holding config.toml and metrics.csv).
-        #[arg(long)]
-        out: PathBuf,
-    },
+    /// Draw the plots of run directories as SVG and PNG (of runs the services wrote, for
+    /// example by hand), and with several runs one figure of them all (mean and band).
+    Plot(crate::plot::PlotArgs),
     /// Replay an initial state and actions through a MuJoCo environment (parity check).
     EnvReplay {
         /// half-cheetah or ant.
@@ -462,28 +459,7 @@ pub fn run(command: Command) -> ExitCode {
         Command::Report { dir, out } => {
             crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))
         }
-        Command::Plot { out } => {
-            let run = RunDir::new(&out);
-            let config = match TrainConfig::from_layers(None, None, Some(&run.config_toml())) {
-                Ok(c) => c,
-                Err(e) => {
-                    eprintln!("jsae plot: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            match crate::plot::plot_run_dir(&run, &config) {
-                Ok(paths) => {
-                    for p in paths {
-                        println!("plot: {}", p.display());
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("jsae plot: {}: {e}", out.display());
-                    ExitCode::FAILURE
-                }
-            }
-        }
+        Command::Plot(args) => crate::plot::main(&args),
         Command::EnvReplay { env, input, output } => {
             let run = || -> Result<usize, String> {
                 let reader = std::fs::File::open(&input)

@@ -1,4 +1,6 @@
-//! Curves with a band per algorithm, drawn by plotters once as SVG and once as PNG.
+//! Curves with a band per algorithm, drawn by plotters once as SVG and once as PNG; also the
+//! pieces other figures share (`jsae plot`'s): the font, the colours, the env-steps axis
+//! labels and the double drawing of anything that implements [`Drawing`].
 //!
 //! plotters draws text with a TrueType font registered at run time: the first of
 //! `$JSAE_FONT` and the usual system places of DejaVu Sans or Liberation Sans that exists
@@ -83,31 +85,102 @@ pub fn font() -> Result<(), String> {
     .clone()
 }
 
-/// Draws `figure` into `stem.svg` and `stem.png`; returns both paths.
-pub fn draw(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, ReportError> {
-    let fail = |path: &Path| {
-        let path = path.to_path_buf();
-        move |message: String| ReportError::Figure { path, message }
+/// A picture that plotters draws on any backend: once as SVG, once as PNG.
+pub trait Drawing {
+    /// Size in pixels (and SVG units).
+    fn size(&self) -> (u32, u32);
+
+    /// Draws on `root` (already white; presented by the caller).
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>
+    where
+        DB::ErrorType: 'static;
+}
+
+impl Drawing for Figure {
+    fn size(&self) -> (u32, u32) {
+        SIZE
+    }
+
+    fn draw_on<DB: DrawingBackend>(&self, root: &DrawingArea<DB, Shift>) -> Result<(), String>
+    where
+        DB::ErrorType: 'static,
+    {
+        draw_bands(root, self)
+    }
+}
+
+/// A plotters drawing error as text.
+pub fn reason<E: std::error::Error + Send + Sync>(e: DrawingAreaErrorKind<E>) -> String {
+    e.to_string()
+}
+
+/// The colour of the `i`-th series.
+pub fn colour(i: usize) -> RGBColor {
+    COLOURS[i % COLOURS.len()]
+}
+
+/// Env steps as an axis label: `950`, `12k`, `2.5M`.
+pub fn steps_label(x: &f64) -> String {
+    let (scaled, unit) = match x.abs() {
+        a if a >= 1e6 => (x / 1e6, "M"),
+        a if a >= 1e3 => (x / 1e3, "k"),
+        _ => (*x, ""),
     };
-    // Not with_extension: a setting's name may hold dots (`lr-0.001`).
+    let text = format!("{scaled:.1}");
+    format!("{}{unit}", text.strip_suffix(".0").unwrap_or(&text))
+}
+
+/// `stem.svg` and `stem.png` (not with_extension: a stem may hold dots, `lr-0.001`).
+pub fn svg_and_png(stem: &Path) -> (PathBuf, PathBuf) {
     let with = |ext: &str| {
         let mut name = stem.as_os_str().to_os_string();
         name.push(ext);
         PathBuf::from(name)
     };
-    let (svg, png) = (with(".svg"), with(".png"));
+    (with(".svg"), with(".png"))
+}
+
+/// Draws `drawing` into `stem.svg` and `stem.png`; returns both paths.
+pub fn draw_twice(drawing: &impl Drawing, stem: &Path) -> Result<Vec<PathBuf>, ReportError> {
+    let fail = |path: &Path| {
+        let path = path.to_path_buf();
+        move |message: String| ReportError::Figure { path, message }
+    };
+    let (svg, png) = svg_and_png(stem);
     font().map_err(fail(&svg))?;
-    draw_on(SVGBackend::new(&svg, SIZE).into_drawing_area(), figure).map_err(fail(&svg))?;
-    draw_on(BitMapBackend::new(&png, SIZE).into_drawing_area(), figure).map_err(fail(&png))?;
+    let size = drawing.size();
+    present(SVGBackend::new(&svg, size).into_drawing_area(), drawing).map_err(fail(&svg))?;
+    present(BitMapBackend::new(&png, size).into_drawing_area(), drawing).map_err(fail(&png))?;
     Ok(vec![svg, png])
 }
 
-fn draw_on<DB: DrawingBackend>(root: DrawingArea<DB, Shift>, figure: &Figure) -> Result<(), String>
+/// Draws `figure` into `stem.svg` and `stem.png`; returns both paths.
+pub fn draw(figure: &Figure, stem: &Path) -> Result<Vec<PathBuf>, ReportError> {
+    draw_twice(figure, stem)
+}
+
+fn present<DB: DrawingBackend>(
+    root: DrawingArea<DB, Shift>,
+    drawing: &impl Drawing,
+) -> Result<(), String>
 where
     DB::ErrorType: 'static,
 {
-    let err = |e: DrawingAreaErrorKind<DB::ErrorType>| e.to_string();
-    root.fill(&WHITE).map_err(err)?;
+    root.fill(&WHITE).map_err(reason)?;
+    drawing.draw_on(&root)?;
+    root.present().map_err(reason)
+}
+
+/// Draws `figure` as one chart filling `area`: a mean line and a shaded band per series,
+/// with a mesh, axis labels and a legend.
+pub fn draw_bands<DB: DrawingBackend>(
+    area: &DrawingArea<DB, Shift>,
+    figure: &Figure,
+) -> Result<(), String>
+where
+    DB::ErrorType: 'static,
+{
+    let err = reason::<DB::ErrorType>;
     let points = figure.series.iter().flat_map(|(_, b)| b.iter());
     let (mut x1, mut y0, mut y1) = (0.0f64, f64::INFINITY, f64::NEG_INFINITY);
     for p in points.filter(|p| p.lo.is_finite() && p.hi.is_finite()) {
@@ -119,7 +192,7 @@ where
         (y0, y1) = (0.0, 1.0);
     }
     let pad = ((y1 - y0) * 0.05).max(1e-3);
-    let mut chart = ChartBuilder::on(&root)
+    let mut chart = ChartBuilder::on(area)
         .caption(&figure.title, ("sans-serif", 20))
         .margin(12)
         .x_label_area_size(45)
@@ -130,12 +203,12 @@ where
         .configure_mesh()
         .x_desc(&figure.x_label)
         .y_desc(&figure.y_label)
-        .x_label_formatter(&|x| format!("{:.0}k", x / 1000.0))
+        .x_label_formatter(&steps_label)
         .label_style(("sans-serif", 14))
         .draw()
         .map_err(err)?;
     for (i, (name, band)) in figure.series.iter().enumerate() {
-        let colour = COLOURS[i % COLOURS.len()];
+        let colour = colour(i);
         let outline: Vec<(f64, f64)> = band
             .iter()
             .map(|p| (p.x, p.hi))
@@ -166,6 +239,5 @@ where
         .label_font(("sans-serif", 15))
         .draw()
         .map_err(err)?;
-    root.present().map_err(err)?;
     Ok(())
 }

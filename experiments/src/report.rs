@@ -357,6 +357,39 @@ pub fn band(curves: &[&[(f64, f64)]], points: usize) -> Vec<Band> {
         .collect()
 }
 
+/// The mean curve of several runs with a band from the lowest to the highest run, on `points`
+/// evenly spaced env steps over the range every run covers (from the latest first point to
+/// the earliest last point), each run's curve interpolated linearly onto them. Empty when
+/// the runs share no range.
+pub fn min_max_band(curves: &[&[(f64, f64)]], points: usize) -> Vec<Band> {
+    let (mut start, mut end) = (f64::NEG_INFINITY, f64::INFINITY);
+    for c in curves {
+        let (Some(first), Some(last)) = (c.first(), c.last()) else {
+            return Vec::new();
+        };
+        (start, end) = (start.max(first.0), end.min(last.0));
+    }
+    if curves.is_empty() || start.is_nan() || end.is_nan() || start > end {
+        return Vec::new();
+    }
+    let steps = if start < end { points.max(2) - 1 } else { 0 };
+    (0..=steps)
+        .filter_map(|i| {
+            let x = start + (end - start) * i as f64 / steps.max(1) as f64;
+            let ys: Vec<f64> = curves
+                .iter()
+                .map(|c| stats::interpolate(c, x))
+                .collect::<Option<_>>()?;
+            Some(Band {
+                x,
+                mean: stats::mean(&ys),
+                lo: ys.iter().copied().fold(f64::INFINITY, f64::min),
+                hi: ys.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            })
+        })
+        .collect()
+}
+
 /// Where a results folder's runs came from, for the report's first line.
 fn sweep_source(dir: &Path) -> String {
     let name = dir.file_name().map_or_else(

@@ -1,5 +1,6 @@
 //! Statistics over seeds: the mean with a percentile-bootstrap 95% confidence interval, the
-//! interquartile mean, and the first env step at which a learning curve reaches a threshold.
+//! interquartile mean, the first env step at which a learning curve reaches a threshold, and
+//! a curve's value between its recorded points.
 //!
 //! Every random choice comes from a fixed seed, so a report is the same each time it is made.
 
@@ -86,6 +87,21 @@ pub fn value_at(curve: &[(f64, f64)], x: f64) -> Option<f64> {
     after.checked_sub(1).map(|i| curve[i].1)
 }
 
+/// The value of a curve (in increasing x) at `x`, interpolated linearly between the two
+/// recorded points around it (None outside the recorded range).
+pub fn interpolate(curve: &[(f64, f64)], x: f64) -> Option<f64> {
+    let (first, last) = (curve.first()?, curve.last()?);
+    if !(first.0..=last.0).contains(&x) {
+        return None;
+    }
+    let after = curve.partition_point(|p| p.0 < x);
+    let b = curve.get(after)?;
+    match after.checked_sub(1).map(|i| curve[i]) {
+        Some(a) if b.0 > a.0 => Some(a.1 + (b.1 - a.1) * (x - a.0) / (b.0 - a.0)),
+        _ => Some(b.1),
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -152,6 +168,13 @@ mod tests {
         assert_eq!(value_at(&curve, 200.0), Some(0.5));
         assert_eq!(value_at(&curve, 299.0), Some(0.5));
         assert_eq!(value_at(&curve, 1e9), Some(0.8));
+        assert_eq!(interpolate(&curve, 50.0), None);
+        assert_eq!(interpolate(&curve, 100.0), Some(0.0));
+        assert_eq!(interpolate(&curve, 150.0), Some(0.25));
+        assert_eq!(interpolate(&curve, 350.0), Some(0.875));
+        assert_eq!(interpolate(&curve, 400.0), Some(0.8));
+        assert_eq!(interpolate(&curve, 401.0), None);
+        assert_eq!(interpolate(&[], 1.0), None);
     }
 
     #[test]

@@ -127,3 +127,19 @@ fn an_empty_folder_is_an_error() {
     assert!(err.to_string().contains("no finished run"), "{err}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn min_max_band_interpolates_over_the_range_every_run_covers() {
+    let a = [(0.0, 0.0), (100.0, 10.0), (200.0, 20.0)];
+    let b = [(50.0, 5.0), (150.0, 5.0)];
+    let band = report::min_max_band(&[&a, &b], 3);
+    let xs: Vec<f64> = band.iter().map(|p| p.x).collect();
+    assert_eq!(xs, vec![50.0, 100.0, 150.0]);
+    // At 100: a is 10, b is 5.
+    assert_eq!((band[1].mean, band[1].lo, band[1].hi), (7.5, 5.0, 10.0));
+    assert_eq!((band[2].lo, band[2].hi), (5.0, 15.0));
+    assert!(report::min_max_band(&[&a, &[(300.0, 1.0)]], 3).is_empty());
+    assert!(report::min_max_band(&[&a, &[]], 3).is_empty());
+    assert!(report::min_max_band(&[], 3).is_empty());
+    assert_eq!(report::min_max_band(&[&a], 5).len(), 5);
+}

@@ -6,7 +6,8 @@
 //! DIR/config.toml          every setting of the run
 //! DIR/metrics.csv          one row per learner update
 //! DIR/summary.json         the result, written last
-//! DIR/learning_curve.svg   DIR/action_embeddings.svg, DIR/state_embeddings.svg (gridworld)
+//! DIR/learning_curve.svg   DIR/action_embeddings.svg, DIR/state_embeddings.svg (gridworld),
+//!                          each with its PNG twin (learning_curve.png, ...)
 //! DIR/logs/NAME.log        one log per service process (`jsae train` without --one-process)
 //! DIR/checkpoints/         policy-vN.bpk, embedding-vN.bpk, and {policy,embedding}-latest.bpk
 //!                          with their versions in {policy,embedding}-latest.version
