@@ -93,18 +93,37 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
         structure.last().is_some_and(|p| p.1 > 0.0 && p.1 < 1.5),
         "{structure:?}"
     );
-    let checkpoints: Vec<_> = std::fs::read_dir(dir.join("checkpoints"))
+    // the final policy and embedding, and the latest of each with its version (to resume)
+    let mut checkpoints: Vec<String> = std::fs::read_dir(dir.join("checkpoints"))
         .expect("checkpoints")
+        .filter_map(|e| e.ok()?.file_name().into_string().ok())
         .collect();
-    assert_eq!(checkpoints.len(), 2, "policy and embedding checkpoints");
+    checkpoints.sort();
+    let (p, e) = (
+        outcome.summary.policy_version,
+        outcome.summary.embedding_version,
+    );
+    let mut expected = vec![
+        format!("embedding-v{e}.bpk"),
+        "embedding-latest.bpk".into(),
+        "embedding-latest.version".into(),
+        format!("policy-v{p}.bpk"),
+        "policy-latest.bpk".into(),
+        "policy-latest.version".into(),
+    ];
+    expected.sort();
+    assert_eq!(checkpoints, expected);
     // the learning curve and, on the gridworld, the action and the state embeddings
     let names: Vec<_> = outcome.plots.iter().filter_map(|p| p.file_name()).collect();
     assert_eq!(
         names,
         [
             "learning_curve.svg",
+            "learning_curve.png",
             "action_embeddings.svg",
-            "state_embeddings.svg"
+            "action_embeddings.png",
+            "state_embeddings.svg",
+            "state_embeddings.png"
         ]
     );
     assert!(outcome.plots.iter().all(|p| p.exists()));

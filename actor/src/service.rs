@@ -310,6 +310,7 @@ fn step_until_done(
                 ),
                 queued(links.fragments.max_capacity(), links.fragments.capacity()),
             ),
+            fragments: sent_fragments,
         });
     }
 }

@@ -230,15 +230,16 @@ fn claim_run_dir(config: &TrainConfig, force: bool) -> Result<(), String> {
 /// --env-steps, --device or --eval-episodes where given; flags that would make it another
 /// run are refused. A finished run is reopened only for more env steps than it took.
 fn resume_config(a: &TrainArgs, dir: &std::path::Path) -> Result<TrainConfig, String> {
+    // (a flag's environment variable counts as the flag: the message names both)
     let other_run = [
-        ("--env", a.run.env.is_some()),
-        ("--algo", a.run.algo.is_some()),
-        ("--seed", a.run.seed.is_some()),
-        ("--config", a.run.config.is_some()),
-        ("--actors", a.actors.is_some()),
-        ("--envs", a.envs.is_some()),
-        ("--out", a.out.is_some()),
-        ("--init-from", a.init_from.is_some()),
+        ("--env (or JSAE_ENV)", a.run.env.is_some()),
+        ("--algo (or JSAE_ALGO)", a.run.algo.is_some()),
+        ("--seed (or JSAE_SEED)", a.run.seed.is_some()),
+        ("--config (or JSAE_CONFIG)", a.run.config.is_some()),
+        ("--actors (or JSAE_ACTORS)", a.actors.is_some()),
+        ("--envs (or JSAE_ENVS)", a.envs.is_some()),
+        ("--out (or JSAE_OUT)", a.out.is_some()),
+        ("--init-from (or JSAE_INIT_FROM)", a.init_from.is_some()),
         ("--pretrain-from", a.pretrain_from.is_some()),
         ("--force", a.force),
     ];

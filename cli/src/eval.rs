@@ -34,7 +34,7 @@ pub struct EvalArgs {
     /// end of training].
     #[arg(long)]
     pub seed: Option<u64>,
-    /// A policy checkpoint file [default: the run's newest].
+    /// A policy checkpoint file [default: the version summary.json names, else the newest].
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Deterministic discrete actions of JSAE: f of the mean, or the most likely action.
@@ -71,23 +71,40 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
                 .unwrap_or(0),
             p.clone(),
         ),
-        None => ckpt.newest(Weights::Policy).ok_or_else(|| {
-            (
-                2,
-                format!("{}: no policy checkpoint", ckpt.path().display()),
-            )
-        })?,
+        // the version summary.json names where it is there (the newest otherwise)
+        None => {
+            let summary = crate::plot::read_summary(&dir).map_err(|e| (2, e.to_string()))?;
+            let named = summary
+                .map(|s| {
+                    (
+                        s.policy_version,
+                        ckpt.versioned(Weights::Policy, s.policy_version),
+                    )
+                })
+                .filter(|(_, path)| path.is_file());
+            named
+                .or_else(|| ckpt.newest(Weights::Policy))
+                .ok_or_else(|| {
+                    (
+                        2,
+                        format!("{}: no policy checkpoint", ckpt.path().display()),
+                    )
+                })?
+        }
     };
     let bytes =
         std::fs::read(&policy_path).map_err(|e| (2, format!("{}: {e}", policy_path.display())))?;
     let mut worker = ActorWorker::new(&config, 0, config.device).map_err(|e| (1, e.to_string()))?;
     if config.algo.representation().needs_embedder() {
-        let emb = crate::plot::latest_embedding(&dir).ok_or_else(|| {
-            (
-                2,
-                format!("{}: no embedding checkpoint", ckpt.path().display()),
-            )
-        })?;
+        // the version summary.json names (the newest where the run has no summary yet)
+        let emb = crate::plot::run_embedding(&dir)
+            .map_err(|e| (2, format!("{}: {e}", dir.path().display())))?
+            .ok_or_else(|| {
+                (
+                    2,
+                    format!("{}: no embedding checkpoint", ckpt.path().display()),
+                )
+            })?;
         worker.set_embedding(&emb).map_err(|e| (2, e.to_string()))?;
     }
     worker

@@ -124,7 +124,10 @@ pub fn train_one_process_with(
     let ckpt = run.checkpoints();
     std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
     std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
-    let resume = files.resume.then(|| ResumePoint::of(&run));
+    let resume = match files.resume {
+        true => Some(ResumePoint::of(&run).map_err(io(&dir))?),
+        false => None,
+    };
     let started = resume.map_or_else(Instant::now, |p| p.started());
     let mut metrics =
         RunMetrics::open(&run, &UPDATE_COLUMNS, resume.is_some()).map_err(io(&dir))?;
@@ -207,6 +210,9 @@ pub fn train_one_process_with(
     if let (Some(path), Some(emb), None) = (&files.pretrain_from, embedder.as_mut(), resume) {
         let done = pretrain_from_recording(emb, path).map_err(TrainError::Embedder)?;
         progress.note(&done.note);
+        let snap = &done.snapshot;
+        ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
+            .map_err(io(ckpt.path()))?;
         for a in &mut actors {
             a.set_embedding(&done.snapshot)?;
         }
@@ -226,6 +232,10 @@ pub fn train_one_process_with(
     for a in &mut actors {
         a.set_policy(&first)?;
     }
+    // the latest policy from the start (as the learner service does), so a run stopped
+    // before its first update resumes too
+    ckpt.write_latest(Weights::Policy, first.version, &first.bytes)
+        .map_err(io(ckpt.path()))?;
     let mut last_policy: PolicySnapshot = first;
     while learner.env_steps() < config.env_steps {
         for i in 0..actors.len() {
@@ -270,6 +280,11 @@ pub fn train_one_process_with(
             learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
             for fragment in rollout.fragments {
                 if let Ingested::Updated(report) = learner.ingest(fragment)? {
+                    // the checkpoint before the row: a stop between them leaves a row
+                    // missing, never the same update twice
+                    let snap = &report.snapshot;
+                    ckpt.write_latest(Weights::Policy, snap.version, &snap.bytes)
+                        .map_err(io(ckpt.path()))?;
                     let wall = started.elapsed().as_secs_f64();
                     let row = update_scalars(&report.metrics, wall, last_embedding.as_ref());
                     metrics.record(&row).map_err(io(&run.metrics_csv()))?;
@@ -277,9 +292,6 @@ pub fn train_one_process_with(
                     for a in &mut actors {
                         a.set_policy(&report.snapshot)?;
                     }
-                    let snap = &report.snapshot;
-                    ckpt.write_latest(Weights::Policy, snap.version, &snap.bytes)
-                        .map_err(io(ckpt.path()))?;
                     last_policy = report.snapshot;
                 }
             }

@@ -33,7 +33,7 @@ impl PretrainProgress {
     /// Whether the trainer logs this pass: the first, each tenth of the epochs, the last.
     pub fn worth_logging(&self) -> bool {
         let tenth = (self.epochs / 10).max(1);
-        self.epoch == 1 || self.epoch % tenth == 0 || self.epoch == self.epochs
+        self.epoch == 1 || self.epoch.is_multiple_of(tenth) || self.epoch == self.epochs
     }
 }
 

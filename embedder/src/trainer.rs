@@ -260,11 +260,11 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                 transitions: n,
                 elapsed: started.elapsed(),
             };
-            if progress.worth_logging() {
-                tracing::info!("{progress}");
-            }
-            if let Some(PretrainObserver(observe)) = self.pretrain_observer.as_mut() {
-                observe(&progress);
+            match self.pretrain_observer.as_mut() {
+                // the observer shows it (a progress bar, or log lines it paces itself)
+                Some(PretrainObserver(observe)) => observe(&progress),
+                None if progress.worth_logging() => tracing::info!("{progress}"),
+                None => {}
             }
         }
         self.stats.model_loss = loss.0;

@@ -71,7 +71,11 @@ fn configure_logging() {
         // thread uses MuJoCo while the handler is installed.
         #[allow(unsafe_code)]
         unsafe {
-            mujoco_rs::logging::set_log_handler(log_mujoco_message)
+            mujoco_rs::logging::set_log_handler(log_mujoco_message);
+            // the handler turns every info topic on (per-step timing among them): off again,
+            // so MuJoCo formats no message where it has nothing to warn about
+            let config = mujoco_rs::wrappers::mj_logging::log_config().with_topics(0);
+            mujoco_rs::wrappers::mj_logging::set_log_config(config);
         };
     });
 }
@@ -81,23 +85,27 @@ fn is_settotalmass_warning(text: &str) -> bool {
     text.contains("settotalmass")
 }
 
-/// MuJoCo's log handler: its messages as tracing events (it must not panic: it runs across
-/// the C boundary).
+/// MuJoCo's log handler: its warnings and errors as tracing events; info and debug messages
+/// are dropped unread. It runs across the C boundary, where a panic aborts the process, so
+/// a panic inside (reading text that is not UTF-8) is caught and the message dropped.
 fn log_mujoco_message(message: &mujoco_rs::wrappers::mj_logging::MjLogMessage) {
     use mujoco_rs::wrappers::mj_logging::MjtLogLevel;
-    let subject = message.subject();
-    let body = message.body().unwrap_or_default();
-    if is_settotalmass_warning(subject) || is_settotalmass_warning(body) {
+    let level = message.level();
+    if matches!(level, MjtLogLevel::mjLOG_INFO | MjtLogLevel::mjLOG_DEBUG) {
         return;
     }
-    match message.level() {
-        MjtLogLevel::mjLOG_ERROR => tracing::error!(target: "mujoco", "{subject} {body}"),
-        MjtLogLevel::mjLOG_WARNING => tracing::warn!(target: "mujoco", "{subject} {body}"),
-        // the handler enables every info topic; they are debugging detail here
-        MjtLogLevel::mjLOG_INFO | MjtLogLevel::mjLOG_DEBUG => {
-            tracing::debug!(target: "mujoco", "{subject} {body}");
+    let _ = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let subject = message.subject();
+        let body = message.body().unwrap_or_default();
+        if is_settotalmass_warning(subject) || is_settotalmass_warning(body) {
+            return;
         }
-    }
+        if level == MjtLogLevel::mjLOG_ERROR {
+            tracing::error!(target: "mujoco", "{subject} {body}");
+        } else {
+            tracing::warn!(target: "mujoco", "{subject} {body}");
+        }
+    }));
 }
 
 /// Ant-v5's constants (Gymnasium defaults).

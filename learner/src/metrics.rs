@@ -129,6 +129,10 @@ impl CsvMetrics {
             )));
         }
         let file = std::fs::OpenOptions::new().append(true).open(path)?;
+        if !text.ends_with('\n') {
+            // a row torn by a crash mid-write: dropped, so the next one starts on its own line
+            file.set_len(complete_rows(&text).len() as u64)?;
+        }
         Ok(Self {
             writer: csv::Writer::from_writer(file),
             path: path.to_path_buf(),
@@ -171,6 +175,11 @@ pub struct MetricsReadError {
     source: csv::Error,
 }
 
+/// The text up to its last line end: the complete rows of a file a crash may have cut.
+fn complete_rows(text: &str) -> &str {
+    &text[..text.rfind('\n').map_or(0, |i| i + 1)]
+}
+
 /// Where a stopped run goes on from (`jsae train --resume`): the env steps and wall seconds
 /// of its last metrics.csv row; zero for a run without rows.
 #[derive(Debug, Clone, Copy, Default, PartialEq)]
@@ -182,16 +191,22 @@ pub struct ResumePoint {
 }
 
 impl ResumePoint {
-    /// The last row of `run`'s metrics.csv (zero where there is none).
-    pub fn of(run: &jsae_proto::run_dir::RunDir) -> Self {
-        let Ok(table) = MetricsTable::read(&run.metrics_csv()) else {
-            return Self::default();
+    /// The last complete row of `run`'s metrics.csv (a row torn by a crash is left out; zero
+    /// where the file has no row or is missing); an error where the file does not read.
+    pub fn of(run: &jsae_proto::run_dir::RunDir) -> io::Result<Self> {
+        let path = run.metrics_csv();
+        let text = match std::fs::read_to_string(&path) {
+            Ok(text) => text,
+            Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Self::default()),
+            Err(e) => return Err(e),
         };
+        let table = MetricsTable::parse(complete_rows(&text))
+            .map_err(|e| io::Error::other(format!("{}: {e}", path.display())))?;
         let last = |name: &str| table.column(name).last().copied().flatten();
-        Self {
+        Ok(Self {
             env_steps: last("env_steps").map_or(0, |s| s as u64),
             wall_seconds: last("wall_seconds").unwrap_or(0.0),
-        }
+        })
     }
 
     /// The start instant a resumed process measures wall time from, so that it counts on
@@ -299,5 +314,33 @@ mod tests {
         assert_eq!(table.series("env_steps", "return_mean"), [(4096.0, -0.25)]);
         assert_eq!(table.column("missing"), [None, None]);
         let _ = std::fs::remove_file(path);
+    }
+
+    #[test]
+    fn a_row_torn_by_a_crash_is_dropped_on_resume() {
+        let dir = std::env::temp_dir().join(format!("jsae-torn-{}", std::process::id()));
+        let run = jsae_proto::run_dir::RunDir::new(&dir);
+        std::fs::create_dir_all(&dir).expect("dir");
+        std::fs::write(
+            run.metrics_csv(),
+            "env_steps,wall_seconds\n2048,1.5\n4096,3.0\n61",
+        )
+        .expect("write");
+        let point = ResumePoint::of(&run).expect("reads");
+        assert_eq!((point.env_steps, point.wall_seconds), (4096, 3.0));
+        let columns = ["env_steps", "wall_seconds"];
+        let mut sink = CsvMetrics::append(&run.metrics_csv(), &columns).expect("append");
+        sink.record(&[("env_steps", Some(6144.0)), ("wall_seconds", Some(4.5))])
+            .expect("row");
+        let table = MetricsTable::read(&run.metrics_csv()).expect("read");
+        assert_eq!(
+            table.column("env_steps"),
+            [Some(2048.0), Some(4096.0), Some(6144.0)]
+        );
+        assert_eq!(
+            ResumePoint::of(&jsae_proto::run_dir::RunDir::new(dir.join("none"))).expect("none"),
+            ResumePoint::default()
+        );
+        let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -247,6 +247,8 @@ pub struct ActorSample {
     pub versions: (u64, u64),
     /// Transition batches and fragments waiting to be sent.
     pub queued: (usize, usize),
+    /// Fragments this rollout queued (one per environment; none during random play).
+    pub fragments: u64,
 }
 
 impl ActorMetrics {
@@ -285,7 +287,7 @@ impl ActorMetrics {
 
     /// A rollout was collected and queued.
     pub fn observe_rollout(&self, sample: &ActorSample) {
-        self.fragments.inc();
+        self.fragments.inc_by(sample.fragments);
         self.env_steps.set(gauge(sample.env_steps));
         self.steps_per_second.observe(sample.env_steps);
         self.policy_version.set(gauge(sample.versions.0));

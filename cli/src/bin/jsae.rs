@@ -11,8 +11,8 @@ use clap::Parser;
 #[command(name = "jsae", version, about = "JSAE-RL launcher and tools")]
 struct Cli {
     /// Log lines as text (coloured only on a terminal) or JSON objects, one per line; the
-    /// services `jsae train` starts log the same way.
-    #[arg(long, global = true, value_enum, env = jsae_proto::logging::LOG_FORMAT_ENV)]
+    /// services `jsae train` starts log the same way [default: $JSAE_LOG_FORMAT, else text].
+    #[arg(long, global = true, value_enum)]
     log_format: Option<jsae_proto::logging::LogFormat>,
     #[command(subcommand)]
     command: jsae_cli::commands::Command,

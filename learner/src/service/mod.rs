@@ -96,7 +96,7 @@ pub async fn serve(
             learner.restore(&s)?;
             tracing::info!("resuming from the policy checkpoint, version {}", s.version);
             if options.resume {
-                let point = ResumePoint::of(&out);
+                let point = ResumePoint::of(&out)?;
                 learner.count_steps_from(point.env_steps);
                 started = point.started();
                 tracing::info!("the run goes on from {} env steps", point.env_steps);

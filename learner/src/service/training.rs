@@ -73,11 +73,11 @@ impl LearnerLoop {
                         Ok(Ingested::Updated(report)) => {
                             let wall = self.started.elapsed().as_secs_f64();
                             let embedding = self.embedding.as_ref();
-                            self.metrics.record(&update_scalars(
-                                &report.metrics,
-                                wall,
-                                embedding,
-                            ))?;
+                            let row = update_scalars(&report.metrics, wall, embedding);
+                            // the checkpoint before the row: a stop between them leaves a
+                            // row missing, never the same update twice
+                            self.publish_snapshot(report.snapshot)?;
+                            self.metrics.record(&row)?;
                             tracing::info!(
                                 "update {}: {} env steps, return {:.3}, lag {:.2}",
                                 report.metrics.update,
@@ -87,7 +87,6 @@ impl LearnerLoop {
                             );
                             self.telemetry
                                 .observe_update(report.metrics.policy_lag_mean);
-                            self.publish_snapshot(report.snapshot)?;
                         }
                         Ok(_) => {}
                         Err(e) => tracing::warn!("fragment refused: {e}"),
