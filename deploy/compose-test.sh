@@ -95,6 +95,13 @@ for svc in "embedder $JSAE_EMBEDDER_PORT jsae.v1.Embedder" "learner $JSAE_LEARNE
     serving "$2" "$3" || fail "$1 never answered SERVING"
     echo "$1: SERVING $(python3 -c "print(f'{$(date +%s.%N) - $up_at:.2f}')") s after up"
 done
+# published on loopback only (JSAE_PUBLISH_ADDR's default): not on every interface
+for svc in "embedder 50051" "learner 50052" "recommender 50060"; do
+    set -- $svc
+    bound="$(compose port "$1" "$2")"
+    [[ "$bound" == 127.0.0.1:* ]] || fail "$1 is published on $bound, not on 127.0.0.1 only"
+done
+echo "ports: published on 127.0.0.1 only"
 for svc in embedder learner recommender; do
     for _ in $(seq 60); do
         [[ "$(docker inspect -f '{{.State.Health.Status}}' "$(compose ps -q $svc)")" == healthy ]] && break
