@@ -97,6 +97,9 @@ pub struct CsvMetrics {
     writer: csv::Writer<File>,
     path: PathBuf,
     columns: Vec<&'static str>,
+    /// The highest `update` written: a row of an update already there (a learner restarted
+    /// from a checkpoint older than its last row) is not written again.
+    last_update: Option<f64>,
 }
 
 impl CsvMetrics {
@@ -109,6 +112,7 @@ impl CsvMetrics {
             writer,
             path: path.to_path_buf(),
             columns: columns.to_vec(),
+            last_update: None,
         })
     }
 
@@ -133,11 +137,25 @@ impl CsvMetrics {
             // a row torn by a crash mid-write: dropped, so the next one starts on its own line
             file.set_len(complete_rows(&text).len() as u64)?;
         }
+        let last_update = MetricsTable::parse(complete_rows(&text))
+            .ok()
+            .and_then(|t| t.column("update").into_iter().flatten().reduce(f64::max));
         Ok(Self {
             writer: csv::Writer::from_writer(file),
             path: path.to_path_buf(),
             columns: columns.to_vec(),
+            last_update,
         })
+    }
+
+    /// Whether `row` is of an update the file holds already (rows are idempotent by
+    /// `update`: such a row is not written again).
+    pub fn is_repeat(&self, row: &[Scalar]) -> bool {
+        let update = row
+            .iter()
+            .find(|(name, _)| *name == "update")
+            .and_then(|s| s.1);
+        matches!((update, self.last_update), (Some(u), Some(last)) if u <= last)
     }
 
     /// The file's path.
@@ -159,10 +177,20 @@ impl MetricsSink for CsvMetrics {
                 self.columns
             )));
         }
+        if self.is_repeat(row) {
+            return Ok(());
+        }
         self.writer.write_record(
             row.iter()
                 .map(|(_, v)| v.map(|x| x.to_string()).unwrap_or_default()),
         )?;
+        if let Some(u) = row
+            .iter()
+            .find(|(name, _)| *name == "update")
+            .and_then(|s| s.1)
+        {
+            self.last_update = Some(self.last_update.map_or(u, |last| last.max(u)));
+        }
         self.writer.flush()
     }
 }
@@ -337,6 +365,19 @@ mod tests {
             table.column("env_steps"),
             [Some(2048.0), Some(4096.0), Some(6144.0)]
         );
+        // rows are idempotent by update (F5: a learner restarted from a checkpoint older
+        // than its last row does not write that update twice)
+        let columns = ["update", "env_steps"];
+        let path = dir.join("updates.csv");
+        std::fs::write(&path, "update,env_steps\n1,2048\n2,4096\n").expect("write");
+        let mut sink = CsvMetrics::append(&path, &columns).expect("append");
+        for (u, steps) in [(2.0, 4100.0), (3.0, 6144.0), (3.0, 6150.0)] {
+            sink.record(&[("update", Some(u)), ("env_steps", Some(steps))])
+                .expect("row");
+        }
+        let table = MetricsTable::read(&path).expect("read");
+        assert_eq!(table.column("update"), [Some(1.0), Some(2.0), Some(3.0)]);
+        assert_eq!(table.column("env_steps")[2], Some(6144.0));
         assert_eq!(
             ResumePoint::of(&jsae_proto::run_dir::RunDir::new(dir.join("none"))).expect("none"),
             ResumePoint::default()

@@ -101,6 +101,10 @@ impl RunMetrics {
 
 impl MetricsSink for RunMetrics {
     fn record(&mut self, row: &[Scalar]) -> io::Result<()> {
+        // an update already recorded (a restarted learner): in neither sink again
+        if self.csv.is_repeat(row) {
+            return Ok(());
+        }
         self.csv.record(row)?;
         self.tensorboard.record(row)
     }
