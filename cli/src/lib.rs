@@ -1,6 +1,7 @@
 //! The `jsae` command: training on this machine and the everyday tools.
 //!
-//! Layout: `train` (the one-process driver: embedder, learner and actors in lockstep, the
+//! Layout: `train_command` (`jsae train`'s arguments, settings, run directory and `--resume`),
+//! `train` (the one-process driver: embedder, learner and actors in lockstep, the
 //! deterministic mode), `launch` (the services started as processes on loopback), `progress`
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
@@ -25,5 +26,6 @@ pub mod recommender_client;
 pub mod recommender_eval;
 pub mod replay;
 pub mod train;
+pub mod train_command;
 
 pub use train::{RunOptions, RunOutcome, TrainError, train_one_process, train_one_process_with};
