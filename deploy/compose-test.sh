@@ -1,14 +1,17 @@
 #!/usr/bin/env bash
-# The docker compose stack, tested for real (.ci/run runs it when a Docker engine answers):
+# The docker compose stack, tested for real (.ci/run runs it when a Docker engine answers),
+# with the shared bearer token (a throw-away one unless JSAE_HOST_TOKEN_FILE names one):
 #  1. builds the base image (debootstrap, no registry) and the jsae image from this checkout;
 #  2. trains a small recommender run into the volume with the one-off `train` service;
 #  3. starts the embedder, the learner, 2 actors and the recommender, and times each to
-#     SERVING (gRPC health from the host);
+#     SERVING (gRPC health from the host, which needs no token);
 #  4. kills one actor mid-run (docker kill); --scale brings up a replacement, which joins;
 #  5. restarts the learner: it resumes from its checkpoint and the actors reconnect by
 #     themselves (none of them is restarted);
 #  6. the run completes: summary.json is read from the volume;
-#  7. the recommender answers a Recommend call from the host;
+#  7. the recommender answers a Recommend call from the host with the token; in its container
+#     a call without the token is refused (Unauthenticated) and one with the mounted secret
+#     /run/secrets/jsae_auth_token is answered;
 #  8. tears everything down (containers, network, volume), also on failure, and checks so.
 # PROFILE=dev uses the binaries the test suite built (CI); release by default.
 set -euo pipefail
@@ -72,6 +75,19 @@ teardown() {
     exit $rc
 }
 trap teardown EXIT
+# the shared bearer token (the compose secret jsae_auth_token): the caller's
+# JSAE_HOST_TOKEN_FILE (relative to deploy/, as compose reads it), else a throw-away one in
+# $work, removed with it; deploy/token is never read or written
+if [[ -z "${JSAE_HOST_TOKEN_FILE:-}" ]]; then
+    JSAE_HOST_TOKEN_FILE="$work/token"
+    head -c 32 /dev/urandom | od -An -tx1 | tr -d ' \n' >"$JSAE_HOST_TOKEN_FILE"
+    # compose bind-mounts it as it is: the containers' user (uid 10001) must read it
+    chmod 644 "$JSAE_HOST_TOKEN_FILE"
+elif [[ "$JSAE_HOST_TOKEN_FILE" != /* ]]; then
+    JSAE_HOST_TOKEN_FILE="$root/deploy/$JSAE_HOST_TOKEN_FILE"
+fi
+export JSAE_HOST_TOKEN_FILE
+[[ -r "$JSAE_HOST_TOKEN_FILE" ]] || fail "JSAE_HOST_TOKEN_FILE=$JSAE_HOST_TOKEN_FILE cannot be read"
 
 step "1. build the images (PROFILE=$profile)"
 PROFILE="$profile" TAG="$JSAE_IMAGE" "$root/deploy/build-images.sh"
@@ -177,13 +193,26 @@ assert s["env"] == "gridworld-discrete" and s["env_steps"] >= int(sys.argv[2]), 
 assert s["learner_updates"] > 0 and s["embedding_version"] >= 1, s
 PY
 
-step "7. Recommend from the host"
-answer="$("$bindir/jsae" recommend --addr "127.0.0.1:$JSAE_RECOMMENDER_PORT" --k 3 24852 13176)"
+step "7. Recommend from the host with the token; refused without it"
+answer="$("$bindir/jsae" recommend --auth-token-file "$JSAE_HOST_TOKEN_FILE" \
+    --addr "127.0.0.1:$JSAE_RECOMMENDER_PORT" --k 3 24852 13176)"
 echo "Recommend: $answer"
 python3 - "$answer" <<'PY'
 import json, sys
 a = json.loads(sys.argv[1])
 assert len(a["items"]) == 3 and a["policy_version"] > 0, a
 PY
+# in the recommender's container: without the token (env -u drops the JSAE_AUTH_TOKEN_FILE
+# compose sets) the call is refused; with the mounted secret it is answered
+ask=(env -u JSAE_AUTH_TOKEN_FILE jsae recommend --addr 127.0.0.1:50060 --k 3)
+if refused="$(compose exec -T recommender "${ask[@]}" 24852 2>&1 >/dev/null)"; then
+    fail "a Recommend without the token was answered"
+fi
+grep -q Unauthenticated <<<"$refused" \
+    || fail "a Recommend without the token failed otherwise: $refused"
+echo "without the token: $refused"
+answered="$(compose exec -T recommender "${ask[@]}" --auth-token-file /run/secrets/jsae_auth_token \
+    24852 2>&1)" || fail "a Recommend with /run/secrets/jsae_auth_token failed: $answered"
+echo "with /run/secrets/jsae_auth_token: answered"
 
 step "8. passed; tearing down"

@@ -368,6 +368,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
         checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),
         pretrain_from: None,
         metrics: Default::default(),
+        security: Default::default(),
     };
     let first = start_embedder_with(&c, options.clone()).await;
     let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())
@@ -418,6 +419,7 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
         rec,
         listener,
         sources,
+        Default::default(),
         Default::default(),
         signal,
     ));

@@ -19,6 +19,7 @@ use std::time::Duration;
 
 use jsae_proto::client::{self, PolicyEvent};
 use jsae_proto::net::{self, Backoff};
+use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{EmbedderFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
@@ -69,6 +70,8 @@ pub struct ActorOptions {
     pub record: Option<(PathBuf, String)>,
     /// The Prometheus families the stepping thread updates.
     pub metrics: ActorMetrics,
+    /// TLS and the token sent to the embedder and the learner.
+    pub security: Security,
 }
 
 enum Control {
@@ -328,16 +331,18 @@ pub async fn run(
     let (fragments_tx, fragments_rx) = mpsc::channel::<pb::RolloutFragment>(16);
     let (reports_tx, mut reports_rx) = mpsc::channel::<pb::EvalReport>(2);
     let mut tasks = tokio::task::JoinSet::new();
-    let learner_channel = net::channel(&options.learner)?;
+    let security = options.security.clone();
+    let learner_channel = security.channel(&options.learner)?;
 
     if config.algo.representation().needs_embedder() {
         let url = options
             .embedder
             .clone()
             .ok_or_else(|| anyhow::anyhow!("--embedder is required for --algo jsae"))?;
-        let channel = net::channel(&url)?;
+        let channel = security.channel(&url)?;
+        let watching = security.clone();
         tasks.spawn(async move {
-            client::watch_embedding(&url, |s| {
+            client::watch_embedding(&watching, &url, |s| {
                 embedding_tx.send_replace(Some(Arc::new(s)));
                 async { true }
             })
@@ -356,8 +361,9 @@ pub async fn run(
     {
         let url = options.learner.clone();
         let id = options.id;
+        let watching = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&url, id, |event| {
+            client::watch_policy(&watching, &url, id, |event| {
                 let go_on = match event {
                     PolicyEvent::Snapshot(s) => {
                         policy_tx.send_replace(Some(Arc::new(s)));
@@ -447,7 +453,7 @@ pub struct ActorArgs {
     /// `--embedder`.
     #[command(flatten)]
     pub embedder: EmbedderFlag,
-    /// Learner URL (`http://host:port`).
+    /// Learner URL (`http://host:port`, `https://` with --tls-ca).
     #[arg(long, env = "JSAE_LEARNER")]
     pub learner: String,
     /// `--env/--algo/--seed/--config`.
@@ -470,6 +476,9 @@ pub struct ActorArgs {
     /// `--metrics-listen`.
     #[command(flatten)]
     pub metrics: MetricsFlag,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
@@ -482,9 +491,10 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
         .and_then(|mut c| {
             c.envs_per_actor = args.envs.unwrap_or(c.envs_per_actor);
             c.validate().map_err(|e| e.to_string())?;
-            net::check_url("--learner", &args.learner)?;
-            let embedder = args.embedder.for_run(&c)?;
-            Ok((c, embedder))
+            let security = args.security.load()?;
+            security.check_url("--learner", &args.learner)?;
+            let embedder = args.embedder.for_run(&c, &security)?;
+            Ok((c, embedder, security))
         });
     let id = args.id.unwrap_or_else(|| {
         let nanos = std::time::SystemTime::now()
@@ -495,7 +505,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
     net::service_main(
         "jsae-actor",
         config,
-        |(config, embedder), shutdown| async move {
+        |(config, embedder, security), shutdown| async move {
             let record = args.record.map(|path| {
                 let run_id = args.run_id.unwrap_or_else(|| {
                     path.file_stem()
@@ -512,6 +522,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
                 learner: args.learner,
                 record,
                 metrics,
+                security,
             };
             Ok(run(config, options, shutdown).await?)
         },

@@ -3,6 +3,7 @@
 
 use std::time::Duration;
 
+use jsae_proto::security::SecurityFlags;
 use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
 
@@ -22,25 +23,23 @@ pub struct HealthArgs {
     /// Give up after this many milliseconds.
     #[arg(long, default_value_t = 3000)]
     pub timeout_ms: u64,
+    /// `--tls-ca` (and a client certificate for mutual TLS); health needs no token.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Asks once; `Ok("SERVING")` when the answer is SERVING.
 pub async fn check(args: &HealthArgs) -> Result<&'static str, String> {
-    let url = crate::oneshot::url(&args.addr);
-    let endpoint = tonic::transport::Endpoint::from_shared(url.clone())
-        .map_err(|e| format!("{url}: {e}"))?
-        .connect_timeout(Duration::from_millis(args.timeout_ms))
-        .timeout(Duration::from_millis(args.timeout_ms));
-    let channel = endpoint
-        .connect()
+    let security = args.security.load()?;
+    let (channel, url) = crate::oneshot::connect(&args.addr, &security)?;
+    let mut client = HealthClient::new(channel);
+    let call = client.check(HealthCheckRequest {
+        service: args.service.clone(),
+    });
+    let answer = tokio::time::timeout(Duration::from_millis(args.timeout_ms), call)
         .await
-        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?;
-    let answer = HealthClient::new(channel)
-        .check(HealthCheckRequest {
-            service: args.service.clone(),
-        })
-        .await
-        .map_err(|s| format!("{url}: {} ({:?})", s.message(), s.code()))?
+        .map_err(|_| format!("{url}: no answer in {} ms", args.timeout_ms))?
+        .map_err(|s| crate::oneshot::reason(&url, &s))?
         .into_inner();
     match answer.status() {
         ServingStatus::Serving => Ok("SERVING"),

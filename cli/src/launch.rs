@@ -16,6 +16,7 @@ use std::time::{Duration, Instant};
 
 use jsae_learner::{MetricsTable, Summary};
 use jsae_proto::run_dir::RunDir;
+use jsae_proto::security::SecurityFlags;
 use jsae_proto::settings::TrainConfig;
 
 use crate::plot;
@@ -38,17 +39,26 @@ impl Drop for Service {
     }
 }
 
+/// How every service process is started: this executable, the run directory its log goes
+/// to, and the security settings it is handed (as `JSAE_*` variables, absolute paths) with
+/// the URL scheme they imply.
+struct Children<'a> {
+    exe: &'a Path,
+    run: &'a RunDir,
+    security: Vec<(&'static str, PathBuf)>,
+    scheme: &'static str,
+}
+
 impl Service {
     /// Starts `exe args..`, its stderr and the rest of its stdout into `logs/NAME.log`; waits
-    /// for the first stdout line when `listens` and returns the address it names.
+    /// for the first stdout line when `listens` and returns the URL of the address it names.
     fn start(
-        exe: &Path,
+        children: &Children<'_>,
         args: &[String],
         name: &str,
-        run: &RunDir,
         listens: bool,
     ) -> Result<(Self, Option<String>), TrainError> {
-        let log_path = run.log(name);
+        let log_path = children.run.log(name);
         let log = std::fs::File::create(&log_path).map_err(|source| TrainError::Io {
             path: log_path.clone(),
             source,
@@ -58,8 +68,9 @@ impl Service {
             source,
         })?;
         let typed: Vec<String> = std::env::args().collect();
-        let mut child = Command::new(exe)
+        let mut child = Command::new(children.exe)
             .args(args)
+            .envs(children.security.iter().map(|(k, v)| (k, v)))
             .env(
                 jsae_learner::COMMAND_LINE_ENV,
                 serde_json::to_string(&typed).unwrap_or_default(),
@@ -104,7 +115,7 @@ impl Service {
             .next()
             .filter(|a| a.contains(':'))
             .ok_or_else(|| TrainError::Service(format!("{name} said {line:?}")))?;
-        Ok((service, Some(format!("http://{addr}"))))
+        Ok((service, Some(format!("{}://{addr}", children.scheme))))
     }
 
     fn terminate(&mut self, timeout: Duration) {
@@ -143,6 +154,22 @@ fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
             config_path.display().to_string(),
         ])
         .collect()
+}
+
+/// Checks the security flags for services that are each other's clients on 127.0.0.1 (a
+/// server with a TLS identity needs clients with a CA, and the other way round); the URL
+/// scheme they give.
+pub(crate) fn check_security(flags: &SecurityFlags) -> Result<&'static str, TrainError> {
+    let security = flags.load().map_err(TrainError::Service)?;
+    if flags.tls_cert.is_some() != flags.tls_ca.is_some() {
+        return Err(TrainError::Service(
+            "with separate processes the services are each other's clients: --tls-cert and \
+             --tls-key need --tls-ca (and the other way round); the certificate must name \
+             127.0.0.1"
+                .into(),
+        ));
+    }
+    Ok(security.scheme())
 }
 
 /// A flag that SIGTERM or SIGINT to this process sets (instead of ending it at once).
@@ -210,6 +237,12 @@ pub fn train_processes(
     std::fs::write(&config_path, config.to_toml()).map_err(io(&config_path))?;
     let common = common_args(config, &config_path);
     let listen = ["--listen".to_string(), "127.0.0.1:0".to_string()];
+    let children = Children {
+        exe,
+        run: &run,
+        security: files.security.to_env(),
+        scheme: check_security(&files.security)?,
+    };
 
     let mut embedder = None;
     let mut embedder_url = None;
@@ -227,7 +260,7 @@ pub fn train_processes(
         if let Some(path) = &files.pretrain_from {
             args.extend(["--pretrain-from".into(), path.display().to_string()]);
         }
-        let (service, url) = Service::start(exe, &args, "embedder", &run, true)?;
+        let (service, url) = Service::start(&children, &args, "embedder", true)?;
         progress.note(&format!("embedder on {}", url.as_deref().unwrap_or("?")));
         embedder = Some(service);
         embedder_url = url;
@@ -250,7 +283,7 @@ pub fn train_processes(
     if files.resume {
         args.push("--resume".into());
     }
-    let (mut learner, learner_url) = Service::start(exe, &args, "learner", &run, true)?;
+    let (mut learner, learner_url) = Service::start(&children, &args, "learner", true)?;
     let learner_url = learner_url.unwrap_or_default();
     progress.note(&format!("learner on {learner_url}"));
     let mut actors = Vec::new();
@@ -275,7 +308,7 @@ pub fn train_processes(
             ]);
         }
         let name = format!("actor-{id}");
-        actors.push(Service::start(exe, &args, &name, &run, false)?.0);
+        actors.push(Service::start(&children, &args, &name, false)?.0);
     }
 
     let metrics = run.metrics_csv();

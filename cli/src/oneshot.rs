@@ -6,13 +6,29 @@ use std::fmt::Display;
 use std::future::Future;
 use std::process::ExitCode;
 
-/// `host:port` or a full `http://host:port` URL, as a URL.
-pub fn url(addr: &str) -> String {
+use jsae_proto::security::{Connection, Security};
+
+/// `host:port` or a full `http://host:port` URL, as a URL (`https://` for a bare address
+/// where `security` trusts a CA).
+pub fn url(addr: &str, security: &Security) -> String {
     if addr.contains("://") {
         addr.to_owned()
     } else {
-        format!("http://{addr}")
+        format!("{}://{addr}", security.scheme())
     }
+}
+
+/// A connection to `addr` as users type it, with `security`'s TLS and token; the URL beside
+/// it for messages.
+pub fn connect(addr: &str, security: &Security) -> Result<(Connection, String), String> {
+    let url = url(addr, security);
+    let channel = security.channel(&url).map_err(|e| e.to_string())?;
+    Ok((channel, url))
+}
+
+/// A refused or failed call as a one-line reason.
+pub fn reason(url: &str, status: &tonic::Status) -> String {
+    format!("{url}: {}", jsae_proto::net::status_reason(status))
 }
 
 /// Runs `call` to completion: exit 0 with its answer on stdout, 1 with `name: reason` on
@@ -71,7 +87,8 @@ mod tests {
 
     #[test]
     fn bare_addresses_get_a_scheme() {
-        assert_eq!(super::url("127.0.0.1:1"), "http://127.0.0.1:1");
-        assert_eq!(super::url("http://h:2"), "http://h:2");
+        let plain = jsae_proto::security::Security::default();
+        assert_eq!(super::url("127.0.0.1:1", &plain), "http://127.0.0.1:1");
+        assert_eq!(super::url("http://h:2", &plain), "http://h:2");
     }
 }

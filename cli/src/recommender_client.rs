@@ -4,6 +4,7 @@
 
 use std::io::BufRead;
 
+use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::wire::pb;
 
 use jsae_envs::recsys::Session;
@@ -25,21 +26,23 @@ pub struct AskArgs {
     /// The purchase history, item ids oldest first.
     #[arg(required = true)]
     pub history: Vec<String>,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Asks once; the answer as JSON, or the status as an error.
 pub async fn ask(args: &AskArgs) -> Result<serde_json::Value, String> {
-    let url = crate::oneshot::url(&args.addr);
-    let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
-        .await
-        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?;
+    let security = args.security.load()?;
+    let (channel, url) = crate::oneshot::connect(&args.addr, &security)?;
+    let mut client = pb::recommender_client::RecommenderClient::new(channel);
     let r = client
         .recommend(pb::RecommendRequest {
             history: args.history.clone(),
             k: args.k,
         })
         .await
-        .map_err(|s| format!("{url}: {:?}: {}", s.code(), s.message()))?
+        .map_err(|s| crate::oneshot::reason(&url, &s))?
         .into_inner();
     Ok(serde_json::json!({
         "items": r.items.iter().map(|i| serde_json::json!({"item_id": i.item_id, "score": i.score})).collect::<Vec<_>>(),
@@ -68,6 +71,9 @@ pub struct SubmitArgs {
     /// `{"session_id": "s1", "purchases": [{"item_id": "24852", "price": 1.5,
     /// "time_unix_ms": 0}]}` (`price` and `time_unix_ms` may be left out: 0). `-` reads stdin.
     pub file: std::path::PathBuf,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Reads a JSON-lines session file; blank lines are skipped, a line that is not a session
@@ -88,11 +94,13 @@ pub fn read_sessions(reader: impl BufRead, name: &str) -> Result<Vec<Session>, S
 
 /// Streams the sessions in calls of at most [`MAX_SESSIONS_PER_CALL`] and adds up the
 /// service's summaries (the rejected ones, with the service's reasons, are in `errors`).
-pub async fn submit(addr: &str, sessions: Vec<Session>) -> Result<serde_json::Value, String> {
-    let url = crate::oneshot::url(addr);
-    let mut client = pb::recommender_client::RecommenderClient::connect(url.clone())
-        .await
-        .map_err(|e| format!("{url}: {}", jsae_proto::net::error_chain(&e)))?
+pub async fn submit(
+    addr: &str,
+    security: &Security,
+    sessions: Vec<Session>,
+) -> Result<serde_json::Value, String> {
+    let (channel, url) = crate::oneshot::connect(addr, security)?;
+    let mut client = pb::recommender_client::RecommenderClient::new(channel)
         .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     let mut total = pb::SubmitSummary::default();
@@ -109,9 +117,8 @@ pub async fn submit(addr: &str, sessions: Vec<Session>) -> Result<serde_json::Va
             .await
             .map_err(|s| {
                 format!(
-                    "{url}: {:?}: {} (after {} sessions accepted)",
-                    s.code(),
-                    s.message(),
+                    "{} (after {} sessions accepted)",
+                    crate::oneshot::reason(&url, &s),
                     total.sessions_accepted
                 )
             })?
@@ -160,7 +167,8 @@ pub fn submit_main(args: SubmitArgs) -> std::process::ExitCode {
             .map_err(|e| format!("{name}: {e}"))
             .and_then(|f| read_sessions(std::io::BufReader::new(f), &name))
     };
-    let sessions = match read {
+    let read = read.and_then(|s| Ok((s, args.security.load()?)));
+    let (sessions, security) = match read {
         Ok(s) => s,
         Err(e) => {
             eprintln!("jsae submit-sessions: {e}");
@@ -175,7 +183,7 @@ pub fn submit_main(args: SubmitArgs) -> std::process::ExitCode {
         return std::process::ExitCode::from(2);
     }
     crate::oneshot::run("jsae submit-sessions", async {
-        let summary = submit(&args.addr, sessions).await?;
+        let summary = submit(&args.addr, &security, sessions).await?;
         match summary["sessions_rejected"].as_u64() {
             Some(0) => Ok(summary),
             rejected => {

@@ -82,6 +82,9 @@ pub struct RunOptions {
     /// Continue the stopped run in the run directory (`jsae train --resume`): from its latest
     /// policy and embedding checkpoints, counting on from its last metrics row.
     pub resume: bool,
+    /// The token and TLS files the service processes are started with (separate processes
+    /// only: in one process nothing travels over the network).
+    pub security: jsae_proto::security::SecurityFlags,
 }
 
 impl RunOptions {

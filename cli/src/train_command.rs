@@ -8,6 +8,7 @@ use std::process::ExitCode;
 use clap::Args;
 use jsae_nn::DeviceKind;
 use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::security::SecurityFlags;
 use jsae_proto::settings::{RunFlags, TrainConfig};
 
 use crate::launch;
@@ -68,6 +69,10 @@ pub struct TrainArgs {
     /// No progress output.
     #[arg(long)]
     pub quiet: bool,
+    /// `--auth-token-file`, `--tls-*`: handed to the service processes (with
+    /// `--one-process` nothing travels over the network and they are not read).
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// The files `jsae train` records into and pre-trains from, checked before anything runs.
@@ -83,12 +88,16 @@ fn run_files(a: &TrainArgs, config: &TrainConfig) -> Result<RunOptions, String> 
             return Err(format!("--pretrain-from {}: no such file", path.display()));
         }
     }
+    if !config.one_process {
+        launch::check_security(&a.security).map_err(|e| e.to_string())?;
+    }
     let absolute =
         |p: &PathBuf| std::path::absolute(p).map_err(|e| format!("{}: {e}", p.display()));
     Ok(RunOptions {
         record: a.record.as_ref().map(absolute).transpose()?,
         pretrain_from: a.pretrain_from.as_ref().map(absolute).transpose()?,
         resume: a.resume.is_some(),
+        security: a.security.clone(),
     })
 }
 

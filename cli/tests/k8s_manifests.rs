@@ -44,7 +44,7 @@ fn the_kubernetes_manifests_pass_offline_validation() {
         let text = String::from_utf8_lossy(&out.stdout).into_owned()
             + &String::from_utf8_lossy(&out.stderr);
         assert!(out.status.success(), "Kubernetes {version}: {text}");
-        assert_eq!(text.matches("passed for resource").count(), 10, "{text}");
+        assert_eq!(text.matches("passed for resource").count(), 15, "{text}");
     }
     let out = Command::new(&python)
         .arg(repo_root().join("scripts/python/k8s_check.py"))

@@ -8,11 +8,10 @@
 
 mod common;
 
-use std::io::{BufRead, BufReader};
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{repo_root, venv_python};
+use common::{repo_root, start_recommender, venv_python};
 use jsae_proto::wire::pb;
 
 const SETTINGS: &str = r#"
@@ -35,34 +34,6 @@ pretrain_epochs = 2
 [ppo]
 epochs = 2
 "#;
-
-struct Server(Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
-/// Starts `jsae recommender --listen 127.0.0.1:0 ARGS`; returns it and its address.
-fn start_recommender(args: &[std::ffi::OsString]) -> (Server, String) {
-    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["recommender", "--listen", "127.0.0.1:0"])
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("jsae recommender starts");
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut first)
-        .expect("the address line");
-    let server = Server(child);
-    assert!(first.contains("listening on"), "{first}");
-    let addr = first.trim().rsplit(' ').next().expect("an address");
-    (server, addr.to_owned())
-}
 
 fn recommend(url: &str, history: &[&str], k: u32) -> Result<pb::RecommendResponse, tonic::Status> {
     let runtime = tokio::runtime::Builder::new_current_thread()

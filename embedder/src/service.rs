@@ -13,6 +13,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use jsae_proto::net;
 use jsae_proto::run_dir::{Checkpoints, Weights};
+use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{self, MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
@@ -110,6 +111,8 @@ pub struct EmbedderOptions {
     pub pretrain_from: Option<PathBuf>,
     /// The Prometheus families the training thread updates.
     pub metrics: EmbedderMetrics,
+    /// TLS and the token every RPC but health needs.
+    pub security: Security,
 }
 
 /// The latest embedding checkpoint in `dir`, if any.
@@ -231,6 +234,7 @@ pub async fn serve(
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
     let (states, actions) = config.spaces();
+    let security = options.security.clone();
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE_BATCHES);
     let (publish_tx, publish_rx) = watch::channel(None);
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -253,7 +257,7 @@ pub async fn serve(
     let server = pb::embedder_server::EmbedderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    net::serve(server, listener, async move {
+    net::serve(server, listener, &security, async move {
         shutdown.await;
         tracing::info!("embedder: shutting down");
         let _ = stop_tx.send(true);
@@ -291,6 +295,9 @@ pub struct EmbedderArgs {
     /// `--metrics-listen`.
     #[command(flatten)]
     pub metrics: MetricsFlag,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
@@ -306,17 +313,20 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
                 Err(format!("--pretrain-from {}: no such file", path.display()))
             }
             _ => Ok(c),
-        });
+        })
+        .and_then(|c| Ok((c, args.security.load()?)));
     let mut registry = MetricsRegistry::default();
-    let options = EmbedderOptions {
-        checkpoint_dir: args.checkpoint_dir,
-        pretrain_from: args.pretrain_from,
-        metrics: EmbedderMetrics::register(&mut registry),
-    };
+    let metrics = EmbedderMetrics::register(&mut registry);
     net::service_main(
         "jsae-embedder",
         config,
-        |config, shutdown| async move {
+        |(config, security), shutdown| async move {
+            let options = EmbedderOptions {
+                checkpoint_dir: args.checkpoint_dir,
+                pretrain_from: args.pretrain_from,
+                metrics,
+                security,
+            };
             let listener = net::bind(&args.listen.listen).await?;
             jsae_telemetry::serve(&args.metrics, registry).await?;
             println!("jsae-embedder listening on {}", listener.local_addr()?);

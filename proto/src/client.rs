@@ -4,7 +4,8 @@
 
 use std::future::Future;
 
-use crate::net::{self, Backoff};
+use crate::net::Backoff;
+use crate::security::Security;
 use crate::wire::{MAX_MESSAGE_BYTES, Reassembler, pb};
 use crate::{EmbeddingSnapshot, PolicySnapshot};
 
@@ -21,12 +22,12 @@ pub enum PolicyEvent {
 
 /// Follows the embedder at `url`: every complete snapshot goes to `sink`; returns when `sink`
 /// answers `false` (or `url` is not a valid URL).
-pub async fn watch_embedding<F, Fut>(url: &str, mut sink: F)
+pub async fn watch_embedding<F, Fut>(security: &Security, url: &str, mut sink: F)
 where
     F: FnMut(EmbeddingSnapshot) -> Fut,
     Fut: Future<Output = bool>,
 {
-    let channel = match net::channel(url) {
+    let channel = match security.channel(url) {
         Ok(c) => c,
         Err(e) => {
             tracing::error!("embedder URL {url}: {e}");
@@ -69,13 +70,13 @@ where
 
 /// Follows the learner at `url`: snapshots, evaluation requests and the end of the run go to
 /// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL).
-pub async fn watch_policy<F, Fut>(url: &str, actor_id: u64, mut sink: F)
+pub async fn watch_policy<F, Fut>(security: &Security, url: &str, actor_id: u64, mut sink: F)
 where
     F: FnMut(PolicyEvent) -> Fut,
     Fut: Future<Output = bool>,
 {
     use pb::policy_event::Event;
-    let channel = match net::channel(url) {
+    let channel = match security.channel(url) {
         Ok(c) => c,
         Err(e) => {
             tracing::error!("learner URL {url}: {e}");

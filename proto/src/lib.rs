@@ -10,18 +10,20 @@
 //! `messages` (the messages), `validate` (checks every receiver runs on input), `settings`
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
-//! health, reflection, shutdown signals, a service's `main`, backoff), `status` (the one
-//! mapping of refusals to gRPC codes), `run_dir` (the run directory's file names) and `client` (following snapshot streams
+//! health, reflection, shutdown signals, a service's `main`, backoff), `security` (the
+//! token and TLS), `status` (the one mapping of refusals to gRPC codes), `run_dir` (the run directory's file names) and `client` (following snapshot streams
 //! with reconnection).
 
 #![forbid(unsafe_code)]
 
 mod batch;
 pub mod client;
+mod codec;
 pub mod logging;
 mod messages;
 pub mod net;
 pub mod run_dir;
+pub mod security;
 pub mod settings;
 mod spaces;
 mod status;

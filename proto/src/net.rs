@@ -1,13 +1,14 @@
 //! What every service and client shares on the network: binding with TCP_NODELAY, serving a
 //! service beside health and reflection, the SIGINT/SIGTERM shutdown signal, a service
-//! process's `main`, server streams that follow a watched value, and connecting with backoff.
+//! process's `main`, server streams that follow a watched value, and reconnecting with backoff
+//! (connections themselves: [`crate::security::Security::channel`]).
 
 use std::time::Duration;
 
 use tokio::net::TcpListener;
 use tonic::transport::server::TcpIncoming;
-use tonic::transport::{Channel, Endpoint};
 
+use crate::security::Security;
 use crate::wire::FILE_DESCRIPTOR_SET;
 
 /// Binds `addr` (`host:port`; port 0 picks a free one).
@@ -85,17 +86,6 @@ impl Backoff {
     pub fn reset(&mut self) {
         *self = Self::default();
     }
-}
-
-/// A lazily connecting channel to `url` (`http://host:port`) with TCP_NODELAY on; calls on it
-/// fail with UNAVAILABLE while the server is away and succeed again once it is back.
-pub fn channel(url: &str) -> Result<Channel, tonic::transport::Error> {
-    Ok(Endpoint::from_shared(url.to_string())?
-        .tcp_nodelay(true)
-        .connect_timeout(Duration::from_secs(2))
-        .http2_keep_alive_interval(Duration::from_secs(10))
-        .keep_alive_timeout(Duration::from_secs(10))
-        .connect_lazy())
 }
 
 /// An error with its causes, outermost first (`transport error: tcp connect error:
@@ -201,9 +191,11 @@ pub enum ServeError {
 
 /// Serves `service` on `listener` beside `grpc.health.v1.Health` (reporting it SERVING) and
 /// server reflection, until `shutdown` resolves. Every service of the project is served so.
+/// `security` decides TLS and the token, which every service but health requires.
 pub async fn serve<S>(
     service: S,
     listener: TcpListener,
+    security: &Security,
     shutdown: impl std::future::Future<Output = ()> + Send,
 ) -> Result<(), ServeError>
 where
@@ -220,10 +212,14 @@ where
 {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<S>().await;
-    tonic::transport::Server::builder()
+    let mut server = tonic::transport::Server::builder();
+    if let Some(tls) = security.server_tls() {
+        server = server.tls_config(tls)?;
+    }
+    server
         .add_service(health_service)
-        .add_service(reflection()?)
-        .add_service(service)
+        .add_service(security.guard(reflection()?))
+        .add_service(security.guard(service))
         .serve_with_incoming_shutdown(incoming(listener), shutdown)
         .await?;
     Ok(())

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use jsae_nn::DeviceKind;
 use jsae_proto::net::{self, Failure};
 use jsae_proto::run_dir::RunDir;
+use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{EmbedderFlag, EnvName, RunFlags, TrainConfig};
 
 use crate::baseline::PolicyChoice;
@@ -19,7 +20,8 @@ pub struct RecommenderArgs {
     /// Address to serve on (port 0: any free port; the first stdout line says which).
     #[arg(long, env = "JSAE_LISTEN", default_value = "127.0.0.1:50060")]
     pub listen: String,
-    /// Learner URL to follow for policy snapshots (`http://host:port`).
+    /// Learner URL to follow for policy snapshots (`http://host:port`, `https://` with
+    /// --tls-ca).
     #[arg(long, env = "JSAE_LEARNER")]
     pub learner: Option<String>,
     /// `--embedder`: the embedder to follow with `--learner`.
@@ -51,6 +53,9 @@ pub struct RecommenderArgs {
     /// `--metrics-listen`.
     #[command(flatten)]
     pub metrics: jsae_telemetry::MetricsFlag,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 impl RecommenderArgs {
@@ -64,7 +69,7 @@ impl RecommenderArgs {
     }
 }
 
-fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
+fn config_of(args: &RecommenderArgs, security: &Security) -> Result<TrainConfig, String> {
     let flags = RunFlags {
         env: Some(args.flags.env.unwrap_or(EnvName::Recommender)),
         config: args.settings_file(),
@@ -110,9 +115,10 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
                 .into(),
         );
     }
-    if args.learner.is_some() {
+    if let Some(url) = &args.learner {
+        security.check_url("--learner", url)?;
         args.embedder
-            .for_run(&c)
+            .for_run(&c, security)
             .map_err(|e| format!("{e} with --learner"))?;
     }
     Ok(c)
@@ -122,10 +128,11 @@ fn config_of(args: &RecommenderArgs) -> Result<TrainConfig, String> {
 /// it fails. With `--run DIR --wait` it waits for the run's config.toml (a run still
 /// starting); without `--wait` a directory without one is refused.
 pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
+    let security = args.security.load().map(|s| (args, s));
     net::service_main(
         "jsae recommender",
-        Ok(args),
-        |args, mut shutdown| async move {
+        security,
+        |(args, security), mut shutdown| async move {
             if let (Some(file), None) = (args.settings_file(), &args.flags.config) {
                 if !file.exists() && !args.wait {
                     return Err(Failure::config(format!(
@@ -144,7 +151,7 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
                     }
                 }
             }
-            let config = config_of(&args).map_err(Failure::config)?;
+            let config = config_of(&args, &security).map_err(Failure::config)?;
             let rec =
                 Recommender::new(&config, args.policy, config.device).map_err(Failure::config)?;
             if !rec.has_store() {
@@ -163,7 +170,8 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
             let metrics = jsae_telemetry::RecommenderMetrics::register(&mut registry);
             jsae_telemetry::serve(&args.metrics, registry).await?;
             println!("jsae recommender listening on {}", listener.local_addr()?);
-            Ok(serve(Arc::new(rec), listener, sources, metrics, shutdown).await?)
+            let rec = Arc::new(rec);
+            Ok(serve(rec, listener, sources, metrics, security, shutdown).await?)
         },
         |()| {},
     )

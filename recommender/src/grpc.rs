@@ -6,6 +6,7 @@ use std::sync::Arc;
 
 use jsae_envs::recsys::sessions::{Session, check_session};
 use jsae_proto::net;
+use jsae_proto::security::Security;
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use tokio::net::TcpListener;
 use tonic::{Request, Response, Status, Streaming};
@@ -180,20 +181,22 @@ impl RecommenderService {
     }
 }
 
-/// Serves `rec` on `listener` until `shutdown` resolves, following the weight sources.
+/// Serves `rec` on `listener` until `shutdown` resolves, following the weight sources;
+/// `security` is required of callers and used towards the sources.
 pub async fn serve(
     rec: Arc<Recommender>,
     listener: TcpListener,
     sources: WeightSources,
     metrics: RecommenderMetrics,
+    security: Security,
     shutdown: impl std::future::Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<()> {
-    let mut tasks = follow(&rec, &sources);
+    let mut tasks = follow(&rec, &sources, &security);
     let service = RecommenderService::new(rec, metrics);
     let server = pb::recommender_server::RecommenderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    let result = net::serve(server, listener, shutdown).await;
+    let result = net::serve(server, listener, &security, shutdown).await;
     tasks.abort_all();
     result?;
     Ok(())

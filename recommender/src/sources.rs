@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use jsae_proto::client::{self, PolicyEvent};
 use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::security::Security;
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 
 use crate::scoring::Recommender;
@@ -87,8 +88,13 @@ async fn follow_run(rec: Arc<Recommender>, dir: PathBuf) {
 }
 
 /// Starts following `sources` for `rec` (a run directory is loaded once before this returns,
-/// so a finished run answers from the first request); the tasks end when the set is dropped.
-pub fn follow(rec: &Arc<Recommender>, sources: &WeightSources) -> tokio::task::JoinSet<()> {
+/// so a finished run answers from the first request; services are reached with `security`);
+/// the tasks end when the set is dropped.
+pub fn follow(
+    rec: &Arc<Recommender>,
+    sources: &WeightSources,
+    security: &Security,
+) -> tokio::task::JoinSet<()> {
     let mut tasks = tokio::task::JoinSet::new();
     if let Some(dir) = sources.run.clone() {
         // the first load before serving, so a finished run answers from the first request
@@ -97,8 +103,9 @@ pub fn follow(rec: &Arc<Recommender>, sources: &WeightSources) -> tokio::task::J
     }
     if let Some(url) = sources.learner.clone() {
         let rec = rec.clone();
+        let security = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&url, 0, |event| {
+            client::watch_policy(&security, &url, 0, |event| {
                 if let PolicyEvent::Snapshot(s) = &event {
                     match rec.set_policy(s) {
                         Ok(()) => tracing::debug!("recommender: policy v{}", s.version),
@@ -112,8 +119,9 @@ pub fn follow(rec: &Arc<Recommender>, sources: &WeightSources) -> tokio::task::J
     }
     if let Some(url) = sources.embedder.clone() {
         let rec = rec.clone();
+        let security = security.clone();
         tasks.spawn(async move {
-            client::watch_embedding(&url, |s| {
+            client::watch_embedding(&security, &url, |s| {
                 if let Err(e) = rec.set_embedding(&s) {
                     tracing::warn!("recommender: {e}");
                 }

@@ -2,11 +2,15 @@
 
 Usage: recommender_client.py ADDR KNOWN_ITEM [KNOWN_ITEM ...]
        recommender_client.py --ask ADDR K ITEM [ITEM ...]
+       recommender_client.py --auth ADDR TOKEN_FILE CA_FILE|- KNOWN_ITEM
 
 Checks the contract from another language: health, good and malformed sessions, good and
 bad Recommend requests. Prints one JSON object with what it saw (the Rust test reads it) and
 exits non-zero on the first check that fails. With --ask it only asks for the K best items
 after the history ITEM... (any --policy the service serves) and prints the answer as JSON.
+With --auth it checks a service started with --auth-token-file (and, given a CA file, TLS):
+health answers without the token; Recommend, SubmitSessions and reflection answer
+UNAUTHENTICATED without it or with another; with it Recommend answers.
 """
 
 import json
@@ -62,9 +66,55 @@ def ask(addr, k, history):
                       "unknown_items": r.unknown_items}))
 
 
+def check_auth(addr, token_file, ca_file, item):
+    pb, rpc = build_stubs(tempfile.mkdtemp(prefix="jsae-stubs-"))
+    with open(token_file) as f:
+        token = f.read().strip()
+    if ca_file == "-":
+        channel = grpc.insecure_channel(addr)
+    else:
+        with open(ca_file, "rb") as f:
+            channel = grpc.secure_channel(addr, grpc.ssl_channel_credentials(f.read()))
+    seen = {}
+    health = health_pb2_grpc.HealthStub(channel)
+    status = health.Check(health_pb2.HealthCheckRequest(service=""), timeout=10).status
+    if status != health_pb2.HealthCheckResponse.SERVING:
+        sys.exit(f"health without a token: {status}")
+    seen["health"] = "SERVING"
+    stub = rpc.RecommenderStub(channel)
+    ask = pb.RecommendRequest(history=[item], k=1)
+    session = pb.Session(session_id="auth-check", purchases=[pb.Purchase(item_id=item, price=1.0)])
+    reflect = channel.stream_stream(
+        "/grpc.reflection.v1.ServerReflection/ServerReflectionInfo",
+        request_serializer=lambda b: b, response_deserializer=lambda b: b)
+    # field 7 (list_services) = "": a valid ServerReflectionRequest
+    calls = {
+        "recommend": lambda md: stub.Recommend(ask, timeout=10, metadata=md),
+        "submit": lambda md: stub.SubmitSessions(iter([session]), timeout=10, metadata=md),
+        "reflection": lambda md: list(reflect(iter([b"\x3a\x00"]), timeout=10, metadata=md)),
+    }
+    unauthenticated = grpc.StatusCode.UNAUTHENTICATED
+    for name, call in calls.items():
+        seen[f"{name}_without_token"] = expect_code(lambda: call(None), unauthenticated, name)
+        wrong = [("authorization", "Bearer " + token[:-1] + ("x" if token[-1] != "x" else "y"))]
+        seen[f"{name}_wrong_token"] = expect_code(lambda: call(wrong), unauthenticated, name)
+    good = [("authorization", "Bearer " + token)]
+    r = calls["recommend"](good)
+    if len(r.items) != 1:
+        sys.exit(f"Recommend with the token: {r}")
+    seen["recommend_with_token"] = r.items[0].item_id
+    if not calls["reflection"](good):
+        sys.exit("reflection with the token: no answer")
+    seen["reflection_with_token"] = "answered"
+    print(json.dumps(seen))
+
+
 def main():
     if sys.argv[1] == "--ask":
         ask(sys.argv[2], int(sys.argv[3]), sys.argv[4:])
+        return
+    if sys.argv[1] == "--auth":
+        check_auth(sys.argv[2], sys.argv[3], sys.argv[4], sys.argv[5])
         return
     addr, known = sys.argv[1], sys.argv[2:]
     pb, rpc = build_stubs(tempfile.mkdtemp(prefix="jsae-stubs-"))

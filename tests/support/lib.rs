@@ -2,6 +2,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod raw_grpc;
 pub mod services;
 
 use std::path::PathBuf;

@@ -10,6 +10,7 @@ use jsae_embedder::service::EmbedderOptions;
 use jsae_learner::service::LearnerOptions;
 use jsae_learner::{MetricsTable, Summary};
 use jsae_proto::run_dir::RunDir;
+use jsae_proto::security::Security;
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_proto::wire::pb;
 use jsae_proto::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
@@ -60,8 +61,13 @@ pub fn stop_signal() -> (
 }
 
 pub async fn bind() -> (TcpListener, String) {
+    bind_for(&Security::default()).await
+}
+
+/// A free loopback port and its URL for clients with `security` (`https://` with TLS).
+pub async fn bind_for(security: &Security) -> (TcpListener, String) {
     let l = TcpListener::bind("127.0.0.1:0").await.expect("bind");
-    let url = format!("http://{}", l.local_addr().expect("addr"));
+    let url = format!("{}://{}", security.scheme(), l.local_addr().expect("addr"));
     (l, url)
 }
 
@@ -70,7 +76,7 @@ pub async fn start_embedder(config: &TrainConfig) -> Service<()> {
 }
 
 pub async fn start_embedder_with(config: &TrainConfig, options: EmbedderOptions) -> Service<()> {
-    let (listener, url) = bind().await;
+    let (listener, url) = bind_for(&options.security).await;
     let (stop, signal) = stop_signal();
     let config = config.clone();
     let handle = tokio::spawn(jsae_embedder::service::serve(
@@ -89,6 +95,17 @@ pub async fn start_learner_on(
     url: String,
     embedder: Option<String>,
 ) -> Service<Option<Summary>> {
+    start_learner_secured(config, listener, url, embedder, Security::default()).await
+}
+
+/// [`start_learner_on`] with `security` in front of it and towards the embedder.
+pub async fn start_learner_secured(
+    config: &TrainConfig,
+    listener: TcpListener,
+    url: String,
+    embedder: Option<String>,
+    security: Security,
+) -> Service<Option<Summary>> {
     let (stop, signal) = stop_signal();
     let options = LearnerOptions {
         out: config.out.clone(),
@@ -98,6 +115,7 @@ pub async fn start_learner_on(
             .map(std::sync::Arc::new),
         resume: false,
         metrics: Default::default(),
+        security,
     };
     let handle = tokio::spawn(jsae_learner::service::serve(
         config.clone(),
@@ -126,6 +144,17 @@ pub fn start_actor(
     embedder: Option<&str>,
     learner: &str,
 ) -> Service<ActorReport> {
+    start_actor_secured(config, id, embedder, learner, Security::default())
+}
+
+/// [`start_actor`] with `security` towards the embedder and the learner.
+pub fn start_actor_secured(
+    config: &TrainConfig,
+    id: u64,
+    embedder: Option<&str>,
+    learner: &str,
+    security: Security,
+) -> Service<ActorReport> {
     let (stop, signal) = stop_signal();
     let options = ActorOptions {
         id,
@@ -133,6 +162,7 @@ pub fn start_actor(
         learner: learner.to_string(),
         record: None,
         metrics: Default::default(),
+        security,
     };
     let handle = tokio::spawn(jsae_actor::service::run(config.clone(), options, signal));
     Service {

@@ -134,6 +134,7 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
         listener,
         WeightSources::default(),
         Default::default(),
+        Default::default(),
         async move {
             let _ = stop_rx.await;
         },

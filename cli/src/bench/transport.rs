@@ -87,8 +87,10 @@ async fn embedder_grpc(config: &TrainConfig, batches: &[TransitionBatch]) -> any
             let _ = stopped.await;
         },
     ));
-    let mut client = pb::embedder_client::EmbedderClient::new(jsae_proto::net::channel(&url)?)
-        .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+    let mut client = pb::embedder_client::EmbedderClient::new(
+        jsae_proto::security::Security::default().channel(&url)?,
+    )
+    .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     let wire: Vec<pb::TransitionBatch> = batches.iter().cloned().map(Into::into).collect();
     // warm up the connection
     client
@@ -149,6 +151,7 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
         logged: None,
         resume: false,
         metrics: Default::default(),
+        security: Default::default(),
     };
     let server = tokio::spawn(jsae_learner::service::serve(
         config.clone(),
@@ -158,8 +161,10 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
             let _ = stopped.await;
         },
     ));
-    let mut client = pb::learner_client::LearnerClient::new(jsae_proto::net::channel(&url)?)
-        .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+    let mut client = pb::learner_client::LearnerClient::new(
+        jsae_proto::security::Security::default().channel(&url)?,
+    )
+    .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     let wire: Vec<pb::RolloutFragment> = frags.iter().cloned().map(Into::into).collect();
     client
         .push_fragments(tokio_stream::iter(wire[..1].to_vec()))

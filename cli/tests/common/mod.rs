@@ -113,3 +113,35 @@ pub fn assert_tensorboard_holds_the_metrics(run: &Path) {
         assert_eq!(tags[tag].as_array().map(Vec::len), Some(1), "{tag}");
     }
 }
+
+/// A `jsae recommender` process, killed when dropped.
+#[allow(dead_code, reason = "not every test crate starts a recommender")]
+pub struct Server(pub std::process::Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+/// Starts `jsae recommender --listen 127.0.0.1:0 ARGS`; returns it and its address.
+#[allow(dead_code, reason = "not every test crate starts a recommender")]
+pub fn start_recommender<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> (Server, String) {
+    use std::io::{BufRead, BufReader};
+    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["recommender", "--listen", "127.0.0.1:0"])
+        .args(args)
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .expect("jsae recommender starts");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut first)
+        .expect("the address line");
+    let server = Server(child);
+    assert!(first.contains("listening on"), "{first}");
+    let addr = first.trim().rsplit(' ').next().expect("an address");
+    (server, addr.to_owned())
+}

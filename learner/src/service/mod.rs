@@ -26,6 +26,7 @@ use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
 use jsae_proto::run_dir::RunDir;
+use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{client, net};
@@ -59,6 +60,8 @@ pub struct LearnerOptions {
     /// The Prometheus families the learner thread updates (served where `--metrics-listen`
     /// asks).
     pub metrics: LearnerMetrics,
+    /// TLS and the token: required of the learner's callers, sent to the embedder.
+    pub security: Security,
 }
 
 /// Reads a run's logged purchases where its settings ask for them (None where they do not);
@@ -136,8 +139,9 @@ pub async fn serve(
     if let Some(url) = options.embedder.clone() {
         let queue = queue_tx.clone();
         let stop = net::stopped(&stop_rx);
+        let security = options.security.clone();
         tokio::spawn(async move {
-            let follow = client::watch_embedding(&url, |s| {
+            let follow = client::watch_embedding(&security, &url, |s| {
                 let queue = queue.clone();
                 async move { queue.send(Input::Embedding(s)).await.is_ok() }
             });
@@ -185,7 +189,7 @@ pub async fn serve(
         }
         let _ = stop_tx.send(true);
     };
-    net::serve(server, listener, end).await?;
+    net::serve(server, listener, &options.security, end).await?;
     if !thread.is_finished() && !publish_rx.borrow().finished {
         // interrupted: the thread ends when its queue closes (the service is gone)
         tracing::info!("learner: interrupted before the end of the run");
@@ -231,6 +235,9 @@ pub struct LearnerArgs {
     /// `--metrics-listen`.
     #[command(flatten)]
     pub metrics: MetricsFlag,
+    /// `--auth-token-file`, `--tls-*`.
+    #[command(flatten)]
+    pub security: SecurityFlags,
 }
 
 /// Runs the learner process: exit 0 at the end of the run (or on SIGINT/SIGTERM), 2 for a bad
@@ -244,14 +251,15 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
             c.env_steps = args.env_steps.unwrap_or(c.env_steps);
             c.out = args.out.clone();
             c.validate().map_err(|e| e.to_string())?;
-            let embedder = args.embedder.for_run(&c)?;
+            let security = args.security.load()?;
+            let embedder = args.embedder.for_run(&c, &security)?;
             let logged = logs(&c)?.map(Arc::new);
-            Ok((c, embedder, logged))
+            Ok((c, embedder, logged, security))
         });
     net::service_main(
         "jsae-learner",
         config,
-        |(config, embedder, logged), shutdown| async move {
+        |(config, embedder, logged, security), shutdown| async move {
             let listener = net::bind(&args.listen.listen).await?;
             let mut registry = MetricsRegistry::default();
             let metrics = LearnerMetrics::register(&mut registry);
@@ -263,6 +271,7 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
                 logged,
                 resume: args.resume,
                 metrics,
+                security,
             };
             Ok(serve(config, listener, options, shutdown).await?)
         },

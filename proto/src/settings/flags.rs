@@ -59,22 +59,27 @@ pub struct ListenFlag {
 /// `--embedder URL`: the embedder a process follows, where the run's representation has one.
 #[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
 pub struct EmbedderFlag {
-    /// Embedder URL (`http://host:port`; needed by `--algo jsae`).
+    /// Embedder URL (`http://host:port`, `https://` with --tls-ca; needed by `--algo jsae`).
     #[arg(long, env = "JSAE_EMBEDDER")]
     pub embedder: Option<String>,
 }
 
 impl EmbedderFlag {
     /// The embedder to follow under `config`: none for a representation without an embedder,
-    /// an error when it needs one and the flag is missing.
-    pub fn for_run(&self, config: &TrainConfig) -> Result<Option<String>, String> {
+    /// an error when it needs one and the flag is missing (or its URL does not fit
+    /// `security`'s TLS settings).
+    pub fn for_run(
+        &self,
+        config: &TrainConfig,
+        security: &crate::security::Security,
+    ) -> Result<Option<String>, String> {
         match (
             config.algo.representation().needs_embedder(),
             &self.embedder,
         ) {
             (false, _) => Ok(None),
             (true, Some(url)) => {
-                crate::net::check_url("--embedder", url)?;
+                security.check_url("--embedder", url)?;
                 Ok(Some(url.clone()))
             }
             (true, None) => Err(format!(
