@@ -27,7 +27,7 @@ stage="deploy/.stage"
 rm -rf "$stage"
 mkdir -p "$stage/bin" "$stage/lib" "$stage/share/mujoco" "$stage/share/instacart"
 for b in jsae jsae-actor jsae-embedder jsae-learner; do
-    cp "target/$dir/$b" "$stage/bin/"
+    cp "${CARGO_TARGET_DIR:-target}/$dir/$b" "$stage/bin/"
 done
 strip "$stage"/bin/* 2>/dev/null || true
 cp third_party/mujoco/libmujoco.so.3.17.0 "$stage/lib/"

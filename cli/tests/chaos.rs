@@ -1,0 +1,266 @@
+//! Chaos: one run of separate service processes (embedder, learner, one actor) in which the
+//! learner and the embedder are killed with SIGKILL at random moments, several times each, and
+//! restarted with the same command line on the same ports. The run must still finish by
+//! itself (the actor and the learner exit 0, summary.json written for the whole budget), and
+//! nothing acknowledged may be lost or repeated: metrics.csv's updates strictly increase and
+//! its env steps never go back, the policy and embedding versions go on from their
+//! checkpoints (the final policy version is at least the last update), and every restarted
+//! process came back from its checkpoint.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use common::free_port;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// Kills of each of the learner and the embedder.
+const KILLS: usize = 3;
+const SEED: u64 = 7;
+const ENV_STEPS: u64 = 60_000;
+
+/// A service process and the command line it is restarted with.
+struct Process {
+    args: Vec<String>,
+    log: PathBuf,
+    child: Child,
+    starts: usize,
+}
+
+impl Process {
+    fn start(dir: &Path, name: &str, args: Vec<String>) -> Self {
+        let log = dir.join(format!("{name}.log"));
+        let child = spawn(&args, &log, 0);
+        Self {
+            args,
+            log,
+            child,
+            starts: 1,
+        }
+    }
+
+    fn kill_and_restart(&mut self) {
+        let _ = self.child.kill(); // SIGKILL
+        let _ = self.child.wait();
+        self.child = spawn(&self.args, &self.log, self.starts);
+        self.starts += 1;
+    }
+
+    fn exited(&mut self) -> Option<std::process::ExitStatus> {
+        self.child.try_wait().expect("try_wait")
+    }
+}
+
+impl Drop for Process {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+fn spawn(args: &[String], log: &Path, start: usize) -> Child {
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(log)
+        .expect("log file");
+    let err = file.try_clone().expect("log file");
+    Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(args)
+        .env("JSAE_CHAOS_START", start.to_string())
+        .stdin(Stdio::null())
+        .stdout(file)
+        .stderr(err)
+        .spawn()
+        .expect("jsae starts")
+}
+
+fn strings(parts: &[&str]) -> Vec<String> {
+    parts.iter().map(|s| (*s).to_string()).collect()
+}
+
+/// (update, env_steps) of every complete metrics.csv row.
+fn rows(run: &Path) -> Vec<(u64, u64)> {
+    let text = std::fs::read_to_string(run.join("metrics.csv")).unwrap_or_default();
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let (Some(u), Some(s)) = (
+        header.iter().position(|h| *h == "update"),
+        header.iter().position(|h| *h == "env_steps"),
+    ) else {
+        return Vec::new();
+    };
+    lines
+        .filter(|l| l.split(',').count() == header.len())
+        .filter_map(|l| {
+            let cells: Vec<&str> = l.split(',').collect();
+            Some((cells[u].parse().ok()?, cells[s].parse().ok()?))
+        })
+        .collect()
+}
+
+#[test]
+fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost() {
+    let dir = std::env::temp_dir().join(format!("jsae-chaos-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("dir");
+    std::fs::write(
+        dir.join("small.toml"),
+        "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\npolicy_wait_ms = 500\n\
+         [embedding]\npretrain_transitions = 1000\npretrain_per_action = 0\npretrain_epochs = 5\n\
+         update_every = 2048\nupdate_steps = 5\n[ppo]\nepochs = 1\n",
+    )
+    .expect("settings");
+    let run = dir.join("run");
+    let checkpoints = run.join("checkpoints");
+    let p = |s: &Path| s.display().to_string();
+    let common = [
+        "--env",
+        "gridworld-discrete",
+        "--algo",
+        "jsae",
+        "--seed",
+        "5",
+        "--config",
+    ];
+    let mut common = strings(&common);
+    common.push(p(&dir.join("small.toml")));
+    let (embedder_port, learner_port) = (free_port(), free_port());
+    let embedder_url = format!("http://127.0.0.1:{embedder_port}");
+    let learner_url = format!("http://127.0.0.1:{learner_port}");
+    let with = |mut head: Vec<String>, tail: &[String]| {
+        head.extend(common.iter().cloned());
+        head.extend(tail.iter().cloned());
+        head
+    };
+    let mut embedder = Process::start(
+        &dir,
+        "embedder",
+        with(
+            strings(&[
+                "embedder",
+                "--listen",
+                &format!("127.0.0.1:{embedder_port}"),
+            ]),
+            &["--checkpoint-dir".into(), p(&checkpoints)],
+        ),
+    );
+    let mut learner = Process::start(
+        &dir,
+        "learner",
+        with(
+            strings(&["learner", "--listen", &format!("127.0.0.1:{learner_port}")]),
+            &strings(&[
+                "--embedder",
+                &embedder_url,
+                "--env-steps",
+                &ENV_STEPS.to_string(),
+                "--out",
+                &p(&run),
+            ]),
+        ),
+    );
+    let mut actor = Process::start(
+        &dir,
+        "actor",
+        with(
+            strings(&[
+                "actor",
+                "--learner",
+                &learner_url,
+                "--embedder",
+                &embedder_url,
+            ]),
+            &strings(&["--id", "0", "--envs", "4"]),
+        ),
+    );
+
+    // kills at random moments once the run is under way (the first embedding published: a
+    // restarted embedder resumes from its checkpoint)
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
+    let deadline = Instant::now() + Duration::from_secs(300);
+    let embedding_saved = || {
+        std::fs::read_dir(&checkpoints).is_ok_and(|entries| {
+            entries
+                .flatten()
+                .any(|e| e.file_name().to_string_lossy().starts_with("embedding-"))
+        })
+    };
+    while !embedding_saved() {
+        assert!(Instant::now() < deadline, "no embedding in time");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let mut plan: Vec<bool> = (0..2 * KILLS).map(|i| i % 2 == 0).collect();
+    for i in (1..plan.len()).rev() {
+        plan.swap(i, rng.random_range(0..=i));
+    }
+    for kill_learner in plan {
+        std::thread::sleep(Duration::from_millis(rng.random_range(300..1500)));
+        if learner.exited().is_some() {
+            break; // the run ended before the plan did
+        }
+        if kill_learner {
+            learner.kill_and_restart();
+        } else {
+            embedder.kill_and_restart();
+        }
+    }
+    let (mut learner_exit, mut actor_exit) = (None, None);
+    while learner_exit.is_none() || actor_exit.is_none() {
+        assert!(
+            Instant::now() < deadline,
+            "the run did not finish; learner log:\n{}",
+            std::fs::read_to_string(&learner.log).unwrap_or_default()
+        );
+        learner_exit = learner_exit.or_else(|| learner.exited());
+        actor_exit = actor_exit.or_else(|| actor.exited());
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let logs = || std::fs::read_to_string(&learner.log).unwrap_or_default();
+    assert!(learner_exit.is_some_and(|s| s.success()), "{}", logs());
+    assert!(actor_exit.is_some_and(|s| s.success()));
+    println!(
+        "started: learner {} times, embedder {} times; {} metrics rows",
+        learner.starts,
+        embedder.starts,
+        rows(&run).len()
+    );
+    assert!(learner.starts + embedder.starts > 2, "nothing was killed");
+
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("summary.json")).expect("summary.json"),
+    )
+    .expect("JSON");
+    assert!(
+        summary["env_steps"].as_u64().unwrap_or(0) >= ENV_STEPS,
+        "{summary}"
+    );
+    let rows = rows(&run);
+    assert!(!rows.is_empty());
+    for w in rows.windows(2) {
+        assert!(
+            w[0].0 < w[1].0,
+            "update {} then {}: repeated or back",
+            w[0].0,
+            w[1].0
+        );
+        assert!(w[0].1 <= w[1].1, "env steps went back: {w:?}");
+    }
+    let last_update = rows.last().map_or(0, |r| r.0);
+    assert!(
+        summary["policy_version"].as_u64().unwrap_or(0) >= last_update,
+        "{summary}"
+    );
+    assert!(
+        summary["embedding_version"].as_u64().unwrap_or(0) >= 1,
+        "{summary}"
+    );
+    if learner.starts > 1 {
+        assert!(logs().contains("resuming"), "{}", logs());
+    }
+    embedder.child.kill().ok();
+    let _ = std::fs::remove_dir_all(&dir);
+}
