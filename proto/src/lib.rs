@@ -11,12 +11,14 @@
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
 //! health, reflection, shutdown signals, a service's `main`, backoff), `status` (the one
-//! mapping of refusals to gRPC codes), `run_dir` (the run directory's file names) and `client` (following snapshot streams
-//! with reconnection).
+//! mapping of refusals to gRPC codes), `run_dir` (the run directory's file names; the latest
+//! checkpoint's layout and checksum in `checkpoint_file`) and `client` (following snapshot
+//! streams with reconnection).
 
 #![forbid(unsafe_code)]
 
 mod batch;
+mod checkpoint_file;
 pub mod client;
 pub mod logging;
 mod messages;
