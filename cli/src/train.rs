@@ -277,7 +277,11 @@ pub fn train_one_process_with(
                     last_embedding = Some(snap);
                 }
             }
-            learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
+            learner.observe_actor_steps(
+                actors[i].id(),
+                actors[i].incarnation(),
+                actors[i].env_steps(),
+            );
             for fragment in rollout.fragments {
                 if let Ingested::Updated(report) = learner.ingest(fragment)? {
                     // the checkpoint before the row: a stop between them leaves a row

@@ -12,8 +12,8 @@
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
 //! health, reflection, shutdown signals, a service's `main`, backoff), `status` (the one
 //! mapping of refusals to gRPC codes), `run_dir` (the run directory's file names; the latest
-//! checkpoint's layout and checksum in `checkpoint_file`) and `client` (following snapshot
-//! streams with reconnection).
+//! checkpoint's layout and checksum in `checkpoint_file`), `random_id` (identifiers nobody
+//! can guess) and `client` (following snapshot streams with reconnection).
 
 #![forbid(unsafe_code)]
 
@@ -23,6 +23,7 @@ pub mod client;
 pub mod logging;
 mod messages;
 pub mod net;
+mod random_id;
 pub mod run_dir;
 pub mod settings;
 mod spaces;
@@ -34,6 +35,7 @@ pub use batch::{ActionBatch, StateBatch};
 pub use messages::{
     EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot, RolloutFragment, TransitionBatch,
 };
+pub use random_id::random_id;
 pub use spaces::{ActionSpace, StateSpace};
 pub use status::RpcError;
 pub use validate::ValidationError;

@@ -10,8 +10,10 @@
 //! Embedding versions: a fragment computed under an older embedding than the newest one seen
 //! is dropped, and the first fragment of a newer embedding drops the partial batch gathered
 //! under the old one (its `x` and `e` mean something else now); both count as
-//! `dropped_embedding`. A restarted learner resumes from `checkpoints/policy-latest.bpk` with
-//! its version, so actors that kept running stay valid.
+//! `dropped_embedding`. A fragment of an embedding version the embedder has not published is
+//! refused (after a short grace for the learner to hear of it). A restarted learner resumes
+//! from `checkpoints/policy-latest.ckpt` with its version, so actors that kept running stay
+//! valid.
 //! A fresh run (neither resumed nor warm-started) first pre-trains on logged purchases where
 //! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
 //! actors wait for.
@@ -125,10 +127,14 @@ pub async fn serve(
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
     let (stop_tx, stop_rx) = watch::channel(false);
     let version = Arc::new(AtomicU64::new(learner.version()));
+    // the highest embedding version published (fragments of a higher one are refused)
+    let (published_tx, published_rx) = watch::channel(0u64);
     let service = LearnerService {
         x_dim: learner.policy().input_dim(),
         actions: learner.head().action_space(),
+        max_abs_reward: config.ppo.max_abs_reward,
         version: version.clone(),
+        embedding: options.embedder.is_some().then_some(published_rx),
         queue: queue_tx.clone(),
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
@@ -139,6 +145,11 @@ pub async fn serve(
         tokio::spawn(async move {
             let follow = client::watch_embedding(&url, |s| {
                 let queue = queue.clone();
+                published_tx.send_if_modified(|newest| {
+                    let newer = s.version > *newest;
+                    *newest = (*newest).max(s.version);
+                    newer
+                });
                 async move { queue.send(Input::Embedding(s)).await.is_ok() }
             });
             tokio::select! {
