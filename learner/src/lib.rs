@@ -35,7 +35,7 @@ pub use metrics::{
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     ClaimWentBack, Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport,
-    UpdateMetrics, UpdateReport, clipped_surrogate_loss,
+    StateError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };
 pub use record::{COMMAND_LINE_ENV, EvalStats, RunMeta, Summary};
 pub use tensorboard::{RunMetrics, TensorBoardMetrics};

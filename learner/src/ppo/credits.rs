@@ -131,6 +131,26 @@ impl StepCredits {
         account.delivered = account.delivered.max(steps);
         account.credited = account.credited.max(steps);
     }
+
+    /// Every account, for a checkpoint.
+    pub fn accounts(&self) -> impl Iterator<Item = ((u64, u64), Account)> + '_ {
+        self.accounts.iter().map(|(&k, &a)| (k, a))
+    }
+
+    /// The earlier processes' steps, for a checkpoint.
+    pub fn before(&self) -> u64 {
+        self.before
+    }
+
+    /// Puts back a checkpoint's accounts and earlier steps (the allowance stays this run's).
+    pub fn restore(
+        &mut self,
+        before: u64,
+        accounts: impl IntoIterator<Item = ((u64, u64), Account)>,
+    ) {
+        self.before = before;
+        self.accounts = accounts.into_iter().collect();
+    }
 }
 
 #[cfg(test)]

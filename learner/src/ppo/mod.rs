@@ -15,13 +15,18 @@
 //! Layout: the learner and its buffer with the staleness rules (here), `credits` (the env
 //! steps credited per actor incarnation), `batch` (fragments to a flat batch with GAE, and
 //! minibatches), `update` (the PPO update and its burn path), `fused_update` (its host path,
-//! the default), `report` (what ingesting and updating report).
+//! the default), `report` (what ingesting and updating report), `saved_state` (what a
+//! checkpoint carries besides the weights) in `state_codec`'s layout.
 
 mod batch;
 mod credits;
 mod fused_update;
 mod pretrain;
 mod report;
+#[cfg(test)]
+mod resume_tests;
+mod saved_state;
+mod state_codec;
 #[cfg(test)]
 mod tests;
 mod update;
@@ -42,6 +47,7 @@ use credits::StepCredits;
 use fused_update::FusedState;
 pub use pretrain::{LoggedPurchases, PretrainReport};
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
+pub use state_codec::StateError;
 pub use update::clipped_surrogate_loss;
 
 /// Adam's epsilon, on both update paths.
@@ -178,8 +184,8 @@ impl Learner {
         self.credits.total()
     }
 
-    /// Counts on from `steps` env steps taken before (`jsae train --resume`: the run's
-    /// actors start again from zero).
+    /// Counts on from `steps` env steps taken before (`jsae train --resume` from a checkpoint
+    /// without training state: the run's actors start again from zero).
     pub fn count_steps_from(&mut self, steps: u64) {
         self.credits.count_from(steps);
     }
@@ -225,9 +231,10 @@ impl Learner {
         })
     }
 
-    /// Continues from a saved policy (a restarted learner): loads the weights and takes its
-    /// version, so actors' versions stay meaningful, and its update count (one version per
-    /// update), so metrics.csv goes on numbering. The optimiser state starts afresh.
+    /// Continues from a saved policy: loads the weights and takes its version, so actors'
+    /// versions stay meaningful, and its update count (one version per update), so
+    /// metrics.csv goes on numbering. The optimiser state starts afresh ([`Self::resume`]
+    /// restores it too, from a checkpoint).
     pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
         self.policy.load_bytes(&snapshot.bytes)?;
         self.version = snapshot.version;

@@ -19,6 +19,9 @@ pub enum LearnerError {
     /// The fragment's step claim went back within its actor's incarnation.
     #[error("fragment refused: {0}")]
     Claim(#[from] super::ClaimWentBack),
+    /// A checkpoint's training state does not read.
+    #[error(transparent)]
+    State(#[from] super::StateError),
 }
 
 /// What happened to an ingested fragment.

@@ -12,8 +12,8 @@
 //! under the old one (its `x` and `e` mean something else now); both count as
 //! `dropped_embedding`. A fragment of an embedding version the embedder has not published is
 //! refused (after a short grace for the learner to hear of it). A restarted learner resumes
-//! from `checkpoints/policy-latest.ckpt` with its version, so actors that kept running stay
-//! valid.
+//! from `checkpoints/policy-latest.ckpt`: the weights with their version, so actors that kept
+//! running stay valid, and the training state (optimiser, scaler, step accounts, wall time).
 //! A fresh run (neither resumed nor warm-started) first pre-trains on logged purchases where
 //! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
 //! actors wait for.
@@ -27,7 +27,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
-use jsae_proto::run_dir::RunDir;
+use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{client, net};
@@ -55,8 +55,10 @@ pub struct LearnerOptions {
     /// Logged purchases a fresh run's policy learns from before its first snapshot, where
     /// the settings ask (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`).
     pub logged: Option<Arc<LoggedPurchases>>,
-    /// A stopped run continued (`jsae train --resume`): its actors count from zero again, so
-    /// the learner counts on from the last metrics.csv row's env steps and wall time.
+    /// A stopped run continued (`jsae train --resume`): there must be a checkpoint. Its actors
+    /// count from zero again, in new incarnations; the learner counts on from the
+    /// checkpoint's env steps and wall time (from the last metrics.csv row's where the
+    /// checkpoint carries no training state).
     pub resume: bool,
     /// The Prometheus families the learner thread updates (served where `--metrics-listen`
     /// asks).
@@ -93,11 +95,17 @@ pub async fn serve(
     std::fs::create_dir_all(out.checkpoints().path())?;
     let mut learner = Learner::for_run(&config);
     let mut started = Instant::now();
-    let resumed = match latest_checkpoint(&out) {
+    let resumed = match out.checkpoints().read_latest_checkpoint(Weights::Policy) {
         Some(s) => {
-            learner.restore(&s)?;
+            let wall = learner.resume(&s)?;
             tracing::info!("resuming from the policy checkpoint, version {}", s.version);
-            if options.resume {
+            if let Some(wall) = wall {
+                started = crate::metrics::run_started(wall);
+                tracing::info!(
+                    "the run goes on from {} env steps and {wall:.1} s",
+                    learner.env_steps()
+                );
+            } else if options.resume {
                 let point = ResumePoint::of(&out)?;
                 learner.count_steps_from(point.env_steps);
                 started = point.started();

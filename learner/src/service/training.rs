@@ -1,6 +1,6 @@
 //! The learner's training thread: it owns the [`Learner`] and the run directory (metrics.csv
-//! per update, the latest policy checkpoint before each snapshot is published, summary.json
-//! at the end) and ends the run: at `env_steps` it asks the actor
+//! per update, the latest policy checkpoint with the training state before each snapshot is
+//! published, summary.json at the end) and ends the run: at `env_steps` it asks the actor
 //! whose fragment reached them for deterministic evaluation episodes (a request with a random
 //! id), writes the summary on its report and tells the actors to finish.
 
@@ -8,7 +8,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
 use jsae_proto::settings::TrainConfig;
 use jsae_proto::wire::pb;
 use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
@@ -41,10 +41,23 @@ pub(super) struct LearnerLoop {
 }
 
 impl LearnerLoop {
-    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> std::io::Result<()> {
+    /// Writes the checkpoint (the weights with the training state at this wall time), then
+    /// publishes the snapshot.
+    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> anyhow::Result<()> {
+        let saved = LatestCheckpoint {
+            version: snapshot.version,
+            weights: snapshot.bytes,
+            state: self
+                .learner
+                .training_state(self.started.elapsed().as_secs_f64())?,
+        };
         self.out
             .checkpoints()
-            .write_latest(Weights::Policy, snapshot.version, &snapshot.bytes)?;
+            .write_latest_checkpoint(Weights::Policy, &saved)?;
+        let snapshot = PolicySnapshot {
+            version: saved.version,
+            bytes: saved.weights,
+        };
         self.version.store(snapshot.version, Ordering::Release);
         let snapshot = Arc::new(snapshot);
         self.publish.send_modify(|s| s.snapshot = Some(snapshot));
