@@ -105,12 +105,15 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
     );
     let mut expected = vec![
         format!("embedding-v{e}.bpk"),
-        "embedding-latest.bpk".into(),
-        "embedding-latest.version".into(),
+        "embedding-latest.ckpt".into(),
         format!("policy-v{p}.bpk"),
-        "policy-latest.bpk".into(),
-        "policy-latest.version".into(),
+        "policy-latest.ckpt".into(),
+        "policy-previous.ckpt".into(),
     ];
+    // the latest file a newer one replaced
+    if e > 1 {
+        expected.push("embedding-previous.ckpt".into());
+    }
     expected.sort();
     assert_eq!(checkpoints, expected);
     // the learning curve and, on the gridworld, the action and the state embeddings

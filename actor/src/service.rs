@@ -199,7 +199,7 @@ fn step_until_done(
         Duration::from_millis(config.policy_wait_ms),
     );
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
-    let random_share = config.pretrain_budget().div_ceil(config.actors.max(1)) as u64;
+    let random_share = config.random_play_share();
     loop {
         report.env_steps = worker.env_steps();
         if stop.load(Ordering::Relaxed) {
@@ -369,7 +369,17 @@ pub async fn run(
                         policy_tx.send_replace(Some(Arc::new(s)));
                         true
                     }
-                    PolicyEvent::Evaluate(r) => control_tx.send(Control::Evaluate(r)).is_ok(),
+                    // only a request addressed to this actor is run
+                    PolicyEvent::Evaluate(r) if r.actor_id == id => {
+                        control_tx.send(Control::Evaluate(r)).is_ok()
+                    }
+                    PolicyEvent::Evaluate(r) => {
+                        tracing::warn!(
+                            "actor {id}: an evaluation request for actor {} ignored",
+                            r.actor_id
+                        );
+                        true
+                    }
                     PolicyEvent::Finish => {
                         let _ = control_tx.send(Control::Finish);
                         false

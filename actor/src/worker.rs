@@ -64,6 +64,9 @@ pub struct ActorWorker {
     visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
+    /// This worker's random nonzero number ([`jsae_proto::random_id`]): its fragments' step
+    /// claims count within it.
+    incarnation: u64,
     greedy: GreedyDecode,
     /// Episodes each environment started before its current one.
     episodes: Vec<u64>,
@@ -119,6 +122,7 @@ impl ActorWorker {
             weights,
             current,
             env_steps: 0,
+            incarnation: jsae_proto::random_id(),
             greedy: GreedyDecode::default(),
             episodes: vec![0; config.envs_per_actor],
             recording: false,
@@ -133,6 +137,13 @@ impl ActorWorker {
     /// Env steps taken by this actor.
     pub fn env_steps(&self) -> u64 {
         self.env_steps
+    }
+
+    /// This worker's incarnation: drawn at random when it was made, carried by its fragments
+    /// (the learner counts each incarnation's steps apart, so a restarted actor reusing an id
+    /// is counted afresh).
+    pub fn incarnation(&self) -> u64 {
+        self.incarnation
     }
 
     /// The environments' state space.
@@ -306,6 +317,7 @@ impl ActorWorker {
                 truncated_next_x: Vec::new(),
                 last_next_x: Vec::new(),
                 episodes: Vec::new(),
+                actor_incarnation: self.incarnation,
             })
             .collect();
         let mut x = Vec::new();

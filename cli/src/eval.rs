@@ -92,8 +92,8 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
                 })?
         }
     };
-    let bytes =
-        std::fs::read(&policy_path).map_err(|e| (2, format!("{}: {e}", policy_path.display())))?;
+    let bytes = jsae_proto::run_dir::read_weights(&policy_path)
+        .map_err(|e| (2, format!("{}: {e}", policy_path.display())))?;
     let mut worker = ActorWorker::new(&config, 0, config.device).map_err(|e| (1, e.to_string()))?;
     if config.algo.representation().needs_embedder() {
         // the version summary.json names (the newest where the run has no summary yet)

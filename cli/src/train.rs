@@ -11,7 +11,7 @@ use jsae_learner::{
     Ingested, Learner, MetricsSink, ResumePoint, RunMetrics, Summary, UPDATE_COLUMNS,
     update_scalars,
 };
-use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 use jsae_record::{Recorder, RecordingInfo};
 
@@ -131,7 +131,7 @@ pub fn train_one_process_with(
         true => Some(ResumePoint::of(&run).map_err(io(&dir))?),
         false => None,
     };
-    let started = resume.map_or_else(Instant::now, |p| p.started());
+    let mut started = resume.map_or_else(Instant::now, |p| p.started());
     let mut metrics =
         RunMetrics::open(&run, &UPDATE_COLUMNS, resume.is_some()).map_err(io(&dir))?;
 
@@ -160,16 +160,22 @@ pub fn train_one_process_with(
     }
     let mut last_embedding: Option<EmbeddingSnapshot> = None;
     if let Some(point) = resume {
-        let policy = jsae_learner::service::latest_checkpoint(&run).ok_or_else(|| {
-            TrainError::Service(format!(
-                "--resume: no policy checkpoint in {}",
-                ckpt.path().display()
-            ))
-        })?;
-        learner
-            .restore(&policy)
+        let policy = ckpt
+            .read_latest_checkpoint(Weights::Policy)
+            .ok_or_else(|| {
+                TrainError::Service(format!(
+                    "--resume: no policy checkpoint in {}",
+                    ckpt.path().display()
+                ))
+            })?;
+        let wall = learner
+            .resume(&policy)
             .map_err(|e| TrainError::Service(format!("--resume policy: {e}")))?;
-        learner.count_steps_from(point.env_steps);
+        // the checkpoint's env steps and wall time, else the last metrics row's
+        match wall {
+            Some(wall) => started = jsae_learner::metrics::run_started(wall),
+            None => learner.count_steps_from(point.env_steps),
+        }
         if let Some(emb) = embedder.as_mut() {
             let saved =
                 jsae_embedder::service::latest_checkpoint(ckpt.path()).ok_or_else(|| {
@@ -236,8 +242,16 @@ pub fn train_one_process_with(
         a.set_policy(&first)?;
     }
     // the latest policy from the start (as the learner service does), so a run stopped
-    // before its first update resumes too
-    ckpt.write_latest(Weights::Policy, first.version, &first.bytes)
+    // before its first update resumes too; with the training state, as every checkpoint
+    let checkpoint = |learner: &Learner, snap: &PolicySnapshot, wall: f64| {
+        Ok::<_, TrainError>(LatestCheckpoint {
+            version: snap.version,
+            weights: snap.bytes.clone(),
+            state: learner.training_state(wall)?,
+        })
+    };
+    let saved = checkpoint(&learner, &first, started.elapsed().as_secs_f64())?;
+    ckpt.write_latest_checkpoint(Weights::Policy, &saved)
         .map_err(io(ckpt.path()))?;
     let mut last_policy: PolicySnapshot = first;
     while learner.env_steps() < config.env_steps {
@@ -280,15 +294,19 @@ pub fn train_one_process_with(
                     last_embedding = Some(snap);
                 }
             }
-            learner.observe_actor_steps(actors[i].id(), actors[i].env_steps());
+            learner.observe_actor_steps(
+                actors[i].id(),
+                actors[i].incarnation(),
+                actors[i].env_steps(),
+            );
             for fragment in rollout.fragments {
                 if let Ingested::Updated(report) = learner.ingest(fragment)? {
                     // the checkpoint before the row: a stop between them leaves a row
                     // missing, never the same update twice
-                    let snap = &report.snapshot;
-                    ckpt.write_latest(Weights::Policy, snap.version, &snap.bytes)
-                        .map_err(io(ckpt.path()))?;
                     let wall = started.elapsed().as_secs_f64();
+                    let saved = checkpoint(&learner, &report.snapshot, wall)?;
+                    ckpt.write_latest_checkpoint(Weights::Policy, &saved)
+                        .map_err(io(ckpt.path()))?;
                     let row = update_scalars(&report.metrics, wall, last_embedding.as_ref());
                     metrics.record(&row).map_err(io(&run.metrics_csv()))?;
                     progress.update(&report.metrics);

@@ -103,7 +103,7 @@ impl pb::embedder_server::Embedder for EmbedderService {
 #[derive(Debug, Clone, Default)]
 pub struct EmbedderOptions {
     /// Each published snapshot is written here as `embedding-v{N}.bpk` and as
-    /// `embedding-latest.bpk` (with its version in `embedding-latest.version`); an embedder
+    /// `embedding-latest.ckpt` (with its version and a checksum, `run_dir::Checkpoints`); an embedder
     /// started on a directory that holds them continues from there.
     pub checkpoint_dir: Option<PathBuf>,
     /// A recording (MCAP) to pre-train on at start instead of waiting for random play; not

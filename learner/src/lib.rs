@@ -34,8 +34,8 @@ pub use metrics::{
 };
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
-    Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport, UpdateMetrics,
-    UpdateReport, clipped_surrogate_loss,
+    ClaimWentBack, Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport,
+    StateError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };
 pub use record::{COMMAND_LINE_ENV, EvalStats, RunMeta, Summary};
 pub use tensorboard::{RunMetrics, TensorBoardMetrics};

@@ -240,12 +240,16 @@ impl ResumePoint {
     /// The start instant a resumed process measures wall time from, so that it counts on
     /// from this point's wall seconds.
     pub fn started(&self) -> std::time::Instant {
-        let now = std::time::Instant::now();
-        now.checked_sub(std::time::Duration::from_secs_f64(
-            self.wall_seconds.max(0.0),
-        ))
-        .unwrap_or(now)
+        run_started(self.wall_seconds)
     }
+}
+
+/// The instant a run that had run `wall_seconds` before this process started (a restarted
+/// or resumed learner) measures its wall time from, so that its wall time counts on.
+pub fn run_started(wall_seconds: f64) -> std::time::Instant {
+    let now = std::time::Instant::now();
+    let before = std::time::Duration::try_from_secs_f64(wall_seconds.max(0.0)).unwrap_or_default();
+    now.checked_sub(before).unwrap_or(now)
 }
 
 /// A metrics file read back: its column names and its rows (empty cells are `None`; a cell

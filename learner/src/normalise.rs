@@ -42,6 +42,16 @@ impl RunningMeanStd {
     }
 }
 
+/// What a [`RewardScaler`] has learned: the return statistics and each environment's running
+/// return (a checkpoint saves it, so a restarted learner scales as the stopped one would).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct ScalerState {
+    /// Statistics of the discounted returns.
+    pub stats: RunningMeanStd,
+    /// Each (actor, environment) stream's running discounted return, sorted by stream.
+    pub returns: Vec<((u64, u32), f64)>,
+}
+
 /// Scales rewards by the running std of each environment's discounted return, clipped.
 #[derive(Debug, Clone, Default)]
 pub struct RewardScaler {
@@ -59,6 +69,22 @@ impl RewardScaler {
             clip,
             ..Self::default()
         }
+    }
+
+    /// What it has learned.
+    pub fn state(&self) -> ScalerState {
+        let mut returns: Vec<_> = self.returns.iter().map(|(&k, &v)| (k, v)).collect();
+        returns.sort_by_key(|&(k, _)| k);
+        ScalerState {
+            stats: self.stats.clone(),
+            returns,
+        }
+    }
+
+    /// Goes on from saved state (gamma and the clip stay this scaler's).
+    pub fn set_state(&mut self, state: ScalerState) {
+        self.stats = state.stats;
+        self.returns = state.returns.into_iter().collect();
     }
 
     /// Scales one environment's rewards in place, in step order; `episode_end[t]` resets

@@ -50,5 +50,6 @@ pub fn fragment(
         truncated_next_x: uniform(cuts * x_dim, -3.0, 3.0),
         last_next_x: uniform(x_dim, -3.0, 3.0),
         episodes: Vec::new(),
+        actor_incarnation: 1,
     }
 }

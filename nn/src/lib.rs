@@ -20,8 +20,8 @@ mod obs_norm;
 pub use clip::clip_global_grad_norm;
 pub use device::{BurnDevice, DeviceKind};
 pub use host::{
-    HostAdam, HostInput, HostMlp, InputWeights, MlpWork, OutputBias, PairCross, SparseRows,
-    clip_scale, global_norm, pair_bucket,
+    AdamMoments, HostAdam, HostInput, HostMlp, InputWeights, MlpWork, OutputBias, PairCross,
+    SparseRows, clip_scale, global_norm, pair_bucket,
 };
 pub use init::{linear_from_host, orthogonal, seeded_linear};
 pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};

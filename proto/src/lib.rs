@@ -11,17 +11,21 @@
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
 //! health, reflection, shutdown signals, a service's `main`, backoff), `security` (the
-//! token and TLS), `status` (the one mapping of refusals to gRPC codes), `run_dir` (the run directory's file names) and `client` (following snapshot streams
-//! with reconnection).
+//! token and TLS), `status` (the one mapping of refusals to gRPC codes), `run_dir` (the run
+//! directory's file names; the latest checkpoint's layout and checksum in
+//! `checkpoint_file`), `random_id` (identifiers nobody can guess) and `client` (following
+//! snapshot streams with reconnection).
 
 #![forbid(unsafe_code)]
 
 mod batch;
+mod checkpoint_file;
 pub mod client;
 mod codec;
 pub mod logging;
 mod messages;
 pub mod net;
+mod random_id;
 pub mod run_dir;
 pub mod security;
 pub mod settings;
@@ -34,6 +38,7 @@ pub use batch::{ActionBatch, StateBatch};
 pub use messages::{
     EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot, RolloutFragment, TransitionBatch,
 };
+pub use random_id::random_id;
 pub use spaces::{ActionSpace, StateSpace};
 pub use status::RpcError;
 pub use validate::ValidationError;

@@ -60,7 +60,9 @@ pub struct RolloutFragment {
     /// Version of the embedding that computed `x` and decoded `e` (0 without embeddings).
     pub embedding_version: u64,
     /// The actor's env steps so far (all its environments, random ones included) when it
-    /// sent this fragment: the learner ends the run on the sum over actors.
+    /// sent this fragment: a claim the learner credits at most the fragment's length of
+    /// (plus what is left of the run's random-play allowance), and ends the run on the sum
+    /// of its credits.
     pub actor_env_steps: u64,
     /// Width of one policy input.
     pub x_dim: usize,
@@ -84,6 +86,10 @@ pub struct RolloutFragment {
     pub last_next_x: Vec<f32>,
     /// Episodes that finished inside this fragment.
     pub episodes: Vec<EpisodeStat>,
+    /// The actor process's random nonzero number, drawn when it started
+    /// ([`crate::random_id`]): `actor_env_steps` counts within one incarnation, and a
+    /// restarted actor reusing its id is another incarnation.
+    pub actor_incarnation: u64,
 }
 
 impl RolloutFragment {

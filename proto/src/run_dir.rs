@@ -9,13 +9,16 @@
 //! DIR/learning_curve.svg   DIR/action_embeddings.svg, DIR/state_embeddings.svg (gridworld),
 //!                          each with its PNG twin (learning_curve.png, ...)
 //! DIR/logs/NAME.log        one log per service process (`jsae train` without --one-process)
-//! DIR/checkpoints/         policy-vN.bpk, embedding-vN.bpk, and {policy,embedding}-latest.bpk
-//!                          with their versions in {policy,embedding}-latest.version
+//! DIR/checkpoints/         policy-vN.bpk, embedding-vN.bpk (the weights), and
+//!                          {policy,embedding}-latest.ckpt (version, weights, training state,
+//!                          checksum) with the one each replaced, {policy,embedding}-previous.ckpt
 //! ```
 
-use std::io;
+use std::io::{self, Write};
 use std::path::{Path, PathBuf};
 
+use crate::checkpoint_file::peek_version;
+pub use crate::checkpoint_file::{LatestCheckpoint, read_weights};
 use crate::settings::{Algo, EnvName};
 
 /// A run directory (`--out`).
@@ -145,9 +148,13 @@ impl Weights {
     }
 }
 
-/// A folder of weight checkpoints: `KIND-vN.bpk` for each kept version, `KIND-latest.bpk` with
-/// its version in `KIND-latest.version` for resuming. Writes are atomic (a temporary file,
-/// then a rename), so a reader never sees half a file.
+/// A folder of weight checkpoints: `KIND-vN.bpk` for each kept version (the weights as
+/// written), and `KIND-latest.ckpt` for resuming: one file with its version, the weights, the
+/// training state and a checksum ([`LatestCheckpoint`]); the one it replaced stays as
+/// `KIND-previous.ckpt`. Every write goes to a temporary file that is flushed to disk before
+/// it is renamed into place, and the folder is flushed after the rename, so that a crash or a
+/// power cut leaves the old file or the new one, never half of one. A latest file whose
+/// checksum fails is refused (logged) and the previous one read instead.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Checkpoints {
     dir: PathBuf,
@@ -169,13 +176,15 @@ impl Checkpoints {
         self.dir.join(format!("{}-v{version}.bpk", kind.stem()))
     }
 
-    /// The file of the latest version.
+    /// The latest checkpoint's file (read it with [`read_weights`] or
+    /// [`Self::read_latest_checkpoint`]).
     pub fn latest(&self, kind: Weights) -> PathBuf {
-        self.dir.join(format!("{}-latest.bpk", kind.stem()))
+        self.dir.join(format!("{}-latest.ckpt", kind.stem()))
     }
 
-    fn latest_version_file(&self, kind: Weights) -> PathBuf {
-        self.dir.join(format!("{}-latest.version", kind.stem()))
+    /// The latest checkpoint before the current one.
+    fn previous(&self, kind: Weights) -> PathBuf {
+        self.dir.join(format!("{}-previous.ckpt", kind.stem()))
     }
 
     /// Writes version `version` as `KIND-vN.bpk`.
@@ -183,42 +192,90 @@ impl Checkpoints {
         write_atomic(&self.versioned(kind, version), bytes)
     }
 
-    /// Writes the latest version (the bytes first, then the version that names them).
+    /// Writes the latest version's weights (no training state).
     pub fn write_latest(&self, kind: Weights, version: u64, bytes: &[u8]) -> io::Result<()> {
-        write_atomic(&self.latest(kind), bytes)?;
-        write_atomic(
-            &self.latest_version_file(kind),
-            format!("{version}\n").as_bytes(),
+        self.write_latest_checkpoint(
+            kind,
+            &LatestCheckpoint {
+                version,
+                weights: bytes.to_vec(),
+                state: Vec::new(),
+            },
         )
     }
 
-    /// The latest version and its bytes, if both are there.
-    pub fn read_latest(&self, kind: Weights) -> Option<(u64, Vec<u8>)> {
-        let version = std::fs::read_to_string(self.latest_version_file(kind))
-            .ok()?
-            .trim()
-            .parse()
-            .ok()?;
-        let bytes = std::fs::read(self.latest(kind)).ok()?;
-        Some((version, bytes))
+    /// Writes the latest checkpoint; the one it replaces becomes the previous one.
+    pub fn write_latest_checkpoint(
+        &self,
+        kind: Weights,
+        checkpoint: &LatestCheckpoint,
+    ) -> io::Result<()> {
+        let latest = self.latest(kind);
+        let tmp = write_synced_temp(&latest, &checkpoint.encode())?;
+        match std::fs::rename(&latest, self.previous(kind)) {
+            Err(e) if e.kind() != io::ErrorKind::NotFound => return Err(e),
+            _ => {}
+        }
+        std::fs::rename(&tmp, &latest)?;
+        sync_dir(&self.dir)
     }
 
-    /// Removes the latest files (a fresh run in a directory that held an older one).
+    /// The latest version and its weights, if a good latest (or previous) checkpoint is
+    /// there.
+    pub fn read_latest(&self, kind: Weights) -> Option<(u64, Vec<u8>)> {
+        self.read_latest_checkpoint(kind)
+            .map(|c| (c.version, c.weights))
+    }
+
+    /// The latest checkpoint; where the latest file is damaged (its checksum fails, it is
+    /// torn) or missing, the previous one, with the reason logged; `None` where neither is
+    /// good.
+    pub fn read_latest_checkpoint(&self, kind: Weights) -> Option<LatestCheckpoint> {
+        for path in [self.latest(kind), self.previous(kind)] {
+            let bytes = match std::fs::read(&path) {
+                Ok(bytes) => bytes,
+                Err(e) if e.kind() == io::ErrorKind::NotFound => continue,
+                Err(e) => {
+                    tracing::warn!("checkpoint {}: {e}; not used", path.display());
+                    continue;
+                }
+            };
+            match LatestCheckpoint::decode(&bytes) {
+                Ok(c) => return Some(c),
+                Err(e) => tracing::warn!(
+                    "checkpoint {} refused: {e}; falling back to the previous one, if any",
+                    path.display()
+                ),
+            }
+        }
+        None
+    }
+
+    /// Removes the latest files (a fresh run in a directory that held an older one), and the
+    /// `KIND-latest.bpk`/`.version` pairs older builds wrote.
     pub fn clear_latest(&self) {
         for kind in [Weights::Policy, Weights::Embedding] {
-            let _ = std::fs::remove_file(self.latest(kind));
-            let _ = std::fs::remove_file(self.latest_version_file(kind));
+            let stem = kind.stem();
+            let legacy = [
+                self.dir.join(format!("{stem}-latest.bpk")),
+                self.dir.join(format!("{stem}-latest.version")),
+            ];
+            for file in [self.latest(kind), self.previous(kind)]
+                .into_iter()
+                .chain(legacy)
+            {
+                let _ = std::fs::remove_file(file);
+            }
         }
     }
 
     /// The newest version in the folder and its file: the highest of `KIND-vN.bpk` and the
-    /// latest file's version.
+    /// latest checkpoint's version (its header; the previous file's where the latest is
+    /// unreadable). Read the file with [`read_weights`].
     pub fn newest(&self, kind: Weights) -> Option<(u64, PathBuf)> {
-        let mut best: Option<(u64, PathBuf)> =
-            std::fs::read_to_string(self.latest_version_file(kind))
-                .ok()
-                .and_then(|v| v.trim().parse().ok())
-                .map(|v| (v, self.latest(kind)));
+        let mut best: Option<(u64, PathBuf)> = [self.latest(kind), self.previous(kind)]
+            .into_iter()
+            .find_map(|path| peek_version(&path).ok().map(|v| (v, path)));
         let prefix = format!("{}-v", kind.stem());
         for entry in std::fs::read_dir(&self.dir).ok()?.flatten() {
             let file = entry.file_name();
@@ -237,17 +294,35 @@ impl Checkpoints {
     }
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder and a rename
-/// (creating the folder if needed).
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
+/// Writes `bytes` next to `path` in a temporary file, flushed to disk; returns its path.
+fn write_synced_temp(path: &Path, bytes: &[u8]) -> io::Result<PathBuf> {
     let dir = path.parent().unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)?;
     let name = path
         .file_name()
         .map_or_else(|| "checkpoint".into(), |n| n.to_string_lossy().into_owned());
     let tmp = dir.join(format!(".{name}.tmp"));
-    std::fs::write(&tmp, bytes)?;
-    std::fs::rename(&tmp, path)
+    let mut file = std::fs::File::create(&tmp)?;
+    file.write_all(bytes)?;
+    file.sync_all()?;
+    Ok(tmp)
+}
+
+/// Flushes a folder's entries (a rename into it) to disk; a no-op where the platform cannot
+/// open a folder as a file.
+fn sync_dir(dir: &Path) -> io::Result<()> {
+    match std::fs::File::open(dir) {
+        Ok(d) => d.sync_all(),
+        Err(_) => Ok(()),
+    }
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder, flushed to disk
+/// before the rename, and flushes the folder after it (creating the folder if needed).
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> io::Result<()> {
+    let tmp = write_synced_temp(path, bytes)?;
+    std::fs::rename(&tmp, path)?;
+    sync_dir(path.parent().unwrap_or(Path::new(".")))
 }
 
 #[cfg(test)]
@@ -267,13 +342,62 @@ mod tests {
         c.write_latest(Weights::Policy, 7, b"seven").expect("write");
         let (v, path) = c.newest(Weights::Policy).expect("newest");
         assert_eq!(
-            (v, std::fs::read(path).expect("read")),
+            (v, read_weights(&path).expect("read")),
             (12, b"twelve".to_vec())
         );
+        c.write_latest(Weights::Policy, 13, b"thirteen")
+            .expect("write");
+        let (v, path) = c.newest(Weights::Policy).expect("newest");
+        assert_eq!(
+            (v, read_weights(&path).expect("read")),
+            (13, b"thirteen".to_vec())
+        );
+        c.write_latest(Weights::Policy, 7, b"seven").expect("write");
         assert_eq!(c.read_latest(Weights::Policy), Some((7, b"seven".to_vec())));
         assert_eq!(c.read_latest(Weights::Embedding), None);
         c.clear_latest();
         assert_eq!(c.read_latest(Weights::Policy), None);
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_damaged_latest_checkpoint_is_refused_and_the_previous_one_read() {
+        let dir = std::env::temp_dir().join(format!("jsae-run-damaged-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        let c = RunDir::new(&dir).checkpoints();
+        c.write_latest(Weights::Policy, 1, b"one").expect("write");
+        c.write_latest(Weights::Policy, 2, b"two").expect("write");
+        assert_eq!(c.read_latest(Weights::Policy), Some((2, b"two".to_vec())));
+        // a bit flipped on disk in the newest weights
+        let mut bytes = std::fs::read(c.latest(Weights::Policy)).expect("read");
+        let at = bytes.len() - 6;
+        bytes[at] ^= 0x01;
+        std::fs::write(c.latest(Weights::Policy), bytes).expect("write");
+        assert_eq!(c.read_latest(Weights::Policy), Some((1, b"one".to_vec())));
+        assert!(read_weights(&c.latest(Weights::Policy)).is_err());
+        // torn: cut short (the damaged file went on to be the previous one, then out)
+        c.write_latest(Weights::Policy, 3, b"three").expect("write");
+        c.write_latest(Weights::Policy, 4, b"four").expect("write");
+        let bytes = std::fs::read(c.latest(Weights::Policy)).expect("read");
+        std::fs::write(c.latest(Weights::Policy), &bytes[..bytes.len() - 3]).expect("write");
+        assert_eq!(c.read_latest(Weights::Policy), Some((3, b"three".to_vec())));
+        // both gone: none
+        std::fs::remove_file(c.previous(Weights::Policy)).expect("rm");
+        assert_eq!(c.read_latest(Weights::Policy), None);
+        // the state travels with the weights, in the same file
+        let saved = LatestCheckpoint {
+            version: 5,
+            weights: b"five".to_vec(),
+            state: b"adam".to_vec(),
+        };
+        c.write_latest_checkpoint(Weights::Policy, &saved)
+            .expect("write");
+        assert_eq!(c.read_latest_checkpoint(Weights::Policy), Some(saved));
+        assert_eq!(
+            c.newest(Weights::Policy)
+                .map(|(v, p)| (v, read_weights(&p).ok())),
+            Some((5, Some(b"five".to_vec())))
+        );
         let _ = std::fs::remove_dir_all(&dir);
     }
 

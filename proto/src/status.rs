@@ -16,6 +16,9 @@ pub enum RpcError {
     /// The request does not fit the service's state (an evaluation nobody asked for).
     #[error("{0}")]
     FailedPrecondition(String),
+    /// The caller may not do this (an evaluation report from an actor that was not asked).
+    #[error("{0}")]
+    PermissionDenied(String),
     /// The service failed (a write to disk).
     #[error("{0}")]
     Internal(String),
@@ -35,6 +38,7 @@ impl From<RpcError> for tonic::Status {
             RpcError::ResourceExhausted(m) => Self::resource_exhausted(m),
             RpcError::Unavailable(m) => Self::unavailable(m),
             RpcError::FailedPrecondition(m) => Self::failed_precondition(m),
+            RpcError::PermissionDenied(m) => Self::permission_denied(m),
             RpcError::Internal(m) => Self::internal(m),
         }
     }
@@ -61,6 +65,10 @@ mod tests {
                 tonic::Code::FailedPrecondition,
             ),
             (RpcError::Internal("e".into()), tonic::Code::Internal),
+            (
+                RpcError::PermissionDenied("f".into()),
+                tonic::Code::PermissionDenied,
+            ),
         ];
         for (error, code) in cases {
             let reason = error.to_string();

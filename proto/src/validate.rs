@@ -61,6 +61,18 @@ pub enum ValidationError {
         /// The field.
         field: &'static str,
     },
+    /// A finite value beyond the bound the receiver accepts.
+    #[error("{field}: value {index} is {value}, beyond +-{limit}")]
+    Bound {
+        /// The field.
+        field: &'static str,
+        /// Index of the first such value.
+        index: usize,
+        /// The value.
+        value: f32,
+        /// The largest magnitude accepted.
+        limit: f32,
+    },
 }
 
 fn check_len(field: &'static str, expected: usize, got: usize) -> Result<(), ValidationError> {
@@ -157,13 +169,27 @@ impl TransitionBatch {
     }
 }
 
+fn check_bound(field: &'static str, values: &[f32], limit: f32) -> Result<(), ValidationError> {
+    match values.iter().position(|v| v.abs() > limit) {
+        None => Ok(()),
+        Some(index) => Err(ValidationError::Bound {
+            field,
+            index,
+            value: values[index],
+            limit,
+        }),
+    }
+}
+
 impl RolloutFragment {
     /// Checks dimensions and finiteness against the policy's input width and action space
-    /// (`policy_actions`: the space the policy samples in).
+    /// (`policy_actions`: the space the policy samples in), and that no reward is larger in
+    /// magnitude than `max_abs_reward` (`ppo.max_abs_reward`).
     pub fn validate(
         &self,
         x_dim: usize,
         policy_actions: &ActionSpace,
+        max_abs_reward: f32,
     ) -> Result<(), ValidationError> {
         let n = self.rewards.len();
         check_len("x_dim", x_dim, self.x_dim)?;
@@ -173,6 +199,7 @@ impl RolloutFragment {
         check_len("logp", n, self.logp.len())?;
         check_finite("logp", &self.logp)?;
         check_finite("rewards", &self.rewards)?;
+        check_bound("rewards", &self.rewards, max_abs_reward)?;
         check_len("terminated", n, self.terminated.len())?;
         check_len("truncated", n, self.truncated.len())?;
         let cuts = self.truncated.iter().filter(|&&t| t).count();
@@ -211,6 +238,7 @@ mod tests {
             truncated_next_x: vec![0.1, 0.2],
             last_next_x: vec![0.0, 0.0],
             episodes: vec![],
+            actor_incarnation: 1,
         }
     }
 
@@ -224,7 +252,7 @@ mod tests {
 
     #[test]
     fn a_consistent_fragment_passes() {
-        assert_eq!(fragment().validate(2, &space()), Ok(()));
+        assert_eq!(fragment().validate(2, &space(), 1e6), Ok(()));
     }
 
     #[test]
@@ -232,19 +260,40 @@ mod tests {
         let mut f = fragment();
         f.x.pop();
         assert!(matches!(
-            f.validate(2, &space()),
+            f.validate(2, &space(), 1e6),
             Err(ValidationError::Length { field: "x", .. })
         ));
         let mut f = fragment();
         f.rewards[0] = f32::NAN;
         assert!(matches!(
-            f.validate(2, &space()),
+            f.validate(2, &space(), 1e6),
             Err(ValidationError::NotFinite { .. })
         ));
         let mut f = fragment();
         f.truncated_next_x.clear();
-        assert!(f.validate(2, &space()).is_err());
-        assert!(fragment().validate(3, &space()).is_err());
+        assert!(f.validate(2, &space(), 1e6).is_err());
+        assert!(fragment().validate(3, &space(), 1e6).is_err());
+    }
+
+    #[test]
+    fn finite_rewards_beyond_the_bound_are_refused() {
+        let mut f = fragment();
+        f.rewards[1] = 3e38;
+        assert_eq!(
+            f.validate(2, &space(), 1e6),
+            Err(ValidationError::Bound {
+                field: "rewards",
+                index: 1,
+                value: 3e38,
+                limit: 1e6
+            })
+        );
+        f.rewards[1] = -1e6;
+        assert_eq!(
+            f.validate(2, &space(), 1e6),
+            Ok(()),
+            "the bound itself passes"
+        );
     }
 
     #[test]

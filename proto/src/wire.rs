@@ -192,6 +192,7 @@ impl From<RolloutFragment> for pb::RolloutFragment {
             truncated_next_x: f.truncated_next_x,
             last_next_x: f.last_next_x,
             episodes: f.episodes.iter().map(Into::into).collect(),
+            actor_incarnation: f.actor_incarnation,
         }
     }
 }
@@ -216,6 +217,7 @@ impl TryFrom<pb::RolloutFragment> for RolloutFragment {
             truncated_next_x: f.truncated_next_x,
             last_next_x: f.last_next_x,
             episodes: episodes(f.episodes)?,
+            actor_incarnation: f.actor_incarnation,
         })
     }
 }

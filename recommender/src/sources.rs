@@ -30,8 +30,10 @@ pub struct WeightSources {
 /// they differ from the versions in use; returns whether anything changed.
 pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
     let ckpt = RunDir::new(dir).checkpoints();
-    let read =
-        |path: &Path| std::fs::read(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()));
+    let read = |path: &Path| {
+        jsae_proto::run_dir::read_weights(path)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+    };
     let mut changed = false;
     if rec.config().algo.representation().needs_embedder() {
         let (version, path) = ckpt.newest(Weights::Embedding).ok_or_else(|| {

@@ -229,6 +229,7 @@ pub fn fragment(x_dim: usize, n: usize) -> RolloutFragment {
         truncated_next_x: vec![],
         last_next_x: vec![0.5; x_dim],
         episodes: vec![],
+        actor_incarnation: 1,
     }
 }
 
@@ -292,4 +293,66 @@ pub async fn first_embedding_version(url: &str) -> u64 {
         .expect("stream")
         .expect("a chunk")
         .version
+}
+
+/// A well-formed fragment of `steps` random steps for `config`'s learner (its input width
+/// and action head), from `actor` in `incarnation`, claiming `claim` env steps, under policy
+/// version 0 and embedding version `embedding`.
+pub fn claimed_fragment(
+    config: &TrainConfig,
+    actor: u64,
+    incarnation: u64,
+    claim: u64,
+    steps: usize,
+    embedding: u64,
+) -> pb::RolloutFragment {
+    use rand::SeedableRng;
+    let learner = jsae_learner::Learner::for_run(config);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(claim ^ actor ^ incarnation);
+    let x_dim = learner.policy().input_dim();
+    let mut f = jsae_learner::synthetic::fragment(x_dim, learner.head(), 0, steps, &mut rng);
+    f.actor_id = actor;
+    f.actor_incarnation = incarnation;
+    f.actor_env_steps = claim;
+    f.embedding_version = embedding;
+    f.into()
+}
+
+/// The learner's policy stream as actor `actor_id` sees it.
+pub async fn watch_policy(url: &str, actor_id: u64) -> tonic::Streaming<pb::PolicyEvent> {
+    let mut client = pb::learner_client::LearnerClient::connect(url.to_string())
+        .await
+        .expect("connect")
+        .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+    client
+        .watch_policy(pb::WatchRequest { actor_id })
+        .await
+        .expect("watch")
+        .into_inner()
+}
+
+/// The next event of a policy stream (at most 60 s away).
+pub async fn next_event(stream: &mut tonic::Streaming<pb::PolicyEvent>) -> pb::policy_event::Event {
+    tokio::time::timeout(Duration::from_secs(60), stream.message())
+        .await
+        .expect("an event in time")
+        .expect("the stream")
+        .and_then(|e| e.event)
+        .expect("an event")
+}
+
+/// Reads a policy stream until the last chunk of a snapshot of at least `version`; an
+/// evaluation request on the way is returned instead.
+pub async fn until_snapshot(
+    stream: &mut tonic::Streaming<pb::PolicyEvent>,
+    version: u64,
+) -> Result<u64, pb::EvalRequest> {
+    use pb::policy_event::Event;
+    loop {
+        match next_event(stream).await {
+            Event::Chunk(c) if c.last && c.version >= version => return Ok(c.version),
+            Event::Evaluate(request) => return Err(request),
+            _ => {}
+        }
+    }
 }

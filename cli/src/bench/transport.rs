@@ -64,6 +64,7 @@ fn fragments(n: usize, steps: usize) -> Vec<RolloutFragment> {
             truncated_next_x: vec![],
             last_next_x: vec![0.0; 8],
             episodes: vec![],
+            actor_incarnation: 1,
         })
         .collect()
 }

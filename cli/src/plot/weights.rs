@@ -11,7 +11,7 @@ use jsae_embedder::Embedding;
 use jsae_learner::Summary;
 use jsae_nn::{BurnDevice, RecordError};
 use jsae_proto::EmbeddingSnapshot;
-use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::run_dir::{RunDir, Weights, read_weights};
 use jsae_proto::settings::TrainConfig;
 
 /// The run's `summary.json`; `None` while there is none (a run still going, or one stopped
@@ -64,7 +64,7 @@ pub fn run_embedding(dir: &RunDir) -> io::Result<Option<EmbeddingSnapshot>> {
 /// [`run_embedding`] for the one a finished run's summary names).
 pub fn latest_embedding(dir: &RunDir) -> Option<EmbeddingSnapshot> {
     let (version, path) = dir.checkpoints().newest(Weights::Embedding)?;
-    Some(snapshot(version, std::fs::read(path).ok()?))
+    Some(snapshot(version, read_weights(&path).ok()?))
 }
 
 fn snapshot(version: u64, bytes: Vec<u8>) -> EmbeddingSnapshot {

@@ -554,6 +554,7 @@ mod tests {
             truncated_next_x: state(1, 0),
             last_next_x: state(0, 3),
             episodes: Vec::new(),
+            actor_incarnation: 1,
         };
         let mut out = Vec::new();
         next_purchases(&f, x_dim, n, &mut out);

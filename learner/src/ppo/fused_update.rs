@@ -5,7 +5,7 @@
 //! so snapshots, inference and checkpoints read the same parameters.
 
 use jsae_nn::host::global_norm_rows;
-use jsae_nn::{HostAdam, clip_scale};
+use jsae_nn::{AdamMoments, HostAdam, clip_scale};
 use rand::seq::SliceRandom;
 
 use super::batch::{Batch, HostRows, NetworkInput};
@@ -29,6 +29,16 @@ impl FusedState {
             work: None,
             rows: HostRows::default(),
         }
+    }
+
+    /// Adam's step and moments (for a checkpoint).
+    pub(super) fn adam_moments(&self) -> AdamMoments {
+        self.adam.moments()
+    }
+
+    /// Goes on from saved Adam state.
+    pub(super) fn set_adam_moments(&mut self, saved: AdamMoments) {
+        self.adam.set_moments(saved);
     }
 }
 

@@ -8,20 +8,28 @@
 //! fragments no longer share) and fragments of older versions that arrive later are dropped
 //! too. Every drop is counted in the metrics.
 //!
-//! Layout: the learner and its buffer with the staleness rules (here), `batch` (fragments to
-//! a flat batch with GAE, and minibatches), `update` (the PPO update and its burn path),
-//! `fused_update` (its host path, the default), `report` (what ingesting and updating
-//! report).
+//! Fragments whose rewards exceed `ppo.max_abs_reward` in magnitude are refused (with the
+//! other malformed ones), and the run's env steps are credited from the fragments' claims,
+//! never beyond the steps they deliver (`credits`).
+//!
+//! Layout: the learner and its buffer with the staleness rules (here), `credits` (the env
+//! steps credited per actor incarnation), `batch` (fragments to a flat batch with GAE, and
+//! minibatches), `update` (the PPO update and its burn path), `fused_update` (its host path,
+//! the default), `report` (what ingesting and updating report), `saved_state` (what a
+//! checkpoint carries besides the weights) in `state_codec`'s layout.
 
 mod batch;
+mod credits;
 mod fused_update;
 mod pretrain;
 mod report;
 #[cfg(test)]
+mod resume_tests;
+mod saved_state;
+mod state_codec;
+#[cfg(test)]
 mod tests;
 mod update;
-
-use std::collections::HashMap;
 
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
@@ -34,9 +42,12 @@ use crate::PpoConfig;
 use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
 use batch::{Batch, BatchBuffers};
+pub use credits::ClaimWentBack;
+use credits::StepCredits;
 use fused_update::FusedState;
 pub use pretrain::{LoggedPurchases, PretrainReport};
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
+pub use state_codec::StateError;
 pub use update::clipped_surrogate_loss;
 
 /// Adam's epsilon, on both update paths.
@@ -62,9 +73,8 @@ pub struct Learner {
     rng: ChaCha8Rng,
     version: u64,
     total_env_steps: u64,
-    actor_steps: HashMap<u64, u64>,
-    /// Env steps of earlier processes of a resumed run, whose actors count from zero again.
-    steps_before: u64,
+    /// The env steps credited to each actor incarnation's claims.
+    credits: StepCredits,
     embedding_version: u64,
     pending: Vec<RolloutFragment>,
     pending_steps: usize,
@@ -104,8 +114,7 @@ impl Learner {
             rng,
             version: 0,
             total_env_steps,
-            actor_steps: HashMap::new(),
-            steps_before: 0,
+            credits: StepCredits::new(0),
             embedding_version: 0,
             pending: Vec::new(),
             pending_steps: 0,
@@ -126,14 +135,16 @@ impl Learner {
         let (input, head) = crate::policy_shape(config, &states, &actions);
         let mut ppo = config.ppo.clone();
         ppo.batch_steps = config.round_steps();
-        Self::new(
+        let mut learner = Self::new(
             ppo,
             input,
             head,
             config.env_steps,
             config.seed,
             config.device,
-        )
+        );
+        learner.credits = StepCredits::new(config.random_play_allowance());
+        learner
     }
 
     /// The run's summary, from the evaluation report and this learner's counters.
@@ -167,15 +178,16 @@ impl Learner {
         self.version
     }
 
-    /// Env steps of all actors so far.
+    /// Env steps of all actors so far: the steps credited to their fragments' claims
+    /// (`credits`), and those of earlier processes.
     pub fn env_steps(&self) -> u64 {
-        self.steps_before + self.actor_steps.values().sum::<u64>()
+        self.credits.total()
     }
 
-    /// Counts on from `steps` env steps taken before (`jsae train --resume`: the run's
-    /// actors start again from zero).
+    /// Counts on from `steps` env steps taken before (`jsae train --resume` from a checkpoint
+    /// without training state: the run's actors start again from zero).
     pub fn count_steps_from(&mut self, steps: u64) {
-        self.steps_before = steps;
+        self.credits.count_from(steps);
     }
 
     /// The newest embedding version of the fragments (0: none yet, or no embedding).
@@ -219,9 +231,10 @@ impl Learner {
         })
     }
 
-    /// Continues from a saved policy (a restarted learner): loads the weights and takes its
-    /// version, so actors' versions stay meaningful, and its update count (one version per
-    /// update), so metrics.csv goes on numbering. The optimiser state starts afresh.
+    /// Continues from a saved policy: loads the weights and takes its version, so actors'
+    /// versions stay meaningful, and its update count (one version per update), so
+    /// metrics.csv goes on numbering. The optimiser state starts afresh ([`Self::resume`]
+    /// restores it too, from a checkpoint).
     pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
         self.policy.load_bytes(&snapshot.bytes)?;
         self.version = snapshot.version;
@@ -239,16 +252,28 @@ impl Learner {
         Ok(())
     }
 
-    /// Records an actor's step count (also carried by fragments).
-    pub fn observe_actor_steps(&mut self, actor_id: u64, steps: u64) {
-        let e = self.actor_steps.entry(actor_id).or_insert(0);
-        *e = (*e).max(steps);
+    /// Credits an actor incarnation with `steps` env steps in all, trusted: for a caller that
+    /// steps its actors itself (the one-process driver), not for fragments from elsewhere,
+    /// whose claims [`Self::ingest`] checks.
+    pub fn observe_actor_steps(&mut self, actor_id: u64, incarnation: u64, steps: u64) {
+        self.credits.trust(actor_id, incarnation, steps);
     }
 
-    /// Validates a fragment and buffers it; runs an update when the batch is complete.
+    /// Validates a fragment (shapes, finite values, rewards within `ppo.max_abs_reward`, a
+    /// step claim that does not go back) and buffers it, crediting its env steps; runs an
+    /// update when the batch is complete.
     pub fn ingest(&mut self, fragment: RolloutFragment) -> Result<Ingested, LearnerError> {
-        fragment.validate(self.policy.input_dim(), &self.policy.head().action_space())?;
-        self.observe_actor_steps(fragment.actor_id, fragment.actor_env_steps);
+        fragment.validate(
+            self.policy.input_dim(),
+            &self.policy.head().action_space(),
+            self.config.max_abs_reward,
+        )?;
+        self.credits.credit(
+            fragment.actor_id,
+            fragment.actor_incarnation,
+            fragment.actor_env_steps,
+            fragment.len() as u64,
+        )?;
         self.episodes.extend_from_slice(&fragment.episodes);
         let lag = self.version.saturating_sub(fragment.policy_version);
         if lag > self.config.max_policy_lag {

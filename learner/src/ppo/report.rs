@@ -16,6 +16,12 @@ pub enum LearnerError {
     /// Pre-training on logged purchases was asked of what it does not fit.
     #[error("pre-training on logged purchases: {0}")]
     Pretrain(String),
+    /// The fragment's step claim went back within its actor's incarnation.
+    #[error("fragment refused: {0}")]
+    Claim(#[from] super::ClaimWentBack),
+    /// A checkpoint's training state does not read.
+    #[error(transparent)]
+    State(#[from] super::StateError),
 }
 
 /// What happened to an ingested fragment.

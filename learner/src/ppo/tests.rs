@@ -197,3 +197,46 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
         assert!((h - b).abs() < 1e-5, "host {h}, burn {b}");
     }
 }
+
+#[test]
+fn ingest_refuses_an_absurd_reward_and_a_claim_that_goes_back_and_credits_no_more_than_delivered() {
+    use crate::LearnerError;
+    use jsae_proto::ValidationError;
+    let head = PolicyHead::Gaussian { dim: 2 };
+    let config = PpoConfig {
+        batch_steps: 1024,
+        ..PpoConfig::default()
+    };
+    let mut learner = Learner::new(config, 5, head, 0, 7, DeviceKind::Flex);
+    let mut rng = ChaCha8Rng::seed_from_u64(2);
+    let mut f = crate::synthetic::fragment(5, head, 0, 8, &mut rng);
+    f.actor_env_steps = 8;
+    learner.ingest(f.clone()).expect("a genuine fragment");
+    assert_eq!(learner.env_steps(), 8);
+
+    let mut poisoned = f.clone();
+    poisoned.actor_env_steps = 16;
+    poisoned.rewards[2] = 3e38;
+    let refused = learner.ingest(poisoned);
+    assert!(
+        matches!(
+            refused,
+            Err(LearnerError::Invalid(ValidationError::Bound {
+                index: 2,
+                ..
+            }))
+        ),
+        "{refused:?}"
+    );
+    let mut back = f.clone();
+    back.actor_env_steps = 4;
+    assert!(matches!(learner.ingest(back), Err(LearnerError::Claim(_))));
+    assert_eq!(learner.env_steps(), 8, "neither counted");
+
+    // a claim of 10^12 from a new incarnation of the same id: its own account, its length
+    let mut forged = f;
+    forged.actor_incarnation = 2;
+    forged.actor_env_steps = 1_000_000_000_000;
+    learner.ingest(forged).expect("well formed");
+    assert_eq!(learner.env_steps(), 16);
+}

@@ -1,10 +1,13 @@
 //! The `jsae.v1.Learner` handlers: `PushFragments` checks each fragment (size, dimensions,
-//! finite values, a policy version this learner has published) and queues it for the training
-//! thread; `WatchPolicy` streams snapshots, the evaluation request and the end of the run;
-//! `ReportEval` takes the actors' evaluation.
+//! finite values, rewards within `ppo.max_abs_reward`, a policy version this learner has
+//! published, an embedding version its embedder has published) and queues it for the
+//! training thread; `WatchPolicy` streams snapshots, the evaluation request (to the asked
+//! actor's stream only) and the end of the run; `ReportEval` takes the asked actor's
+//! evaluation.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Duration;
 
 use jsae_proto::wire::{self, pb};
 use jsae_proto::{
@@ -16,6 +19,11 @@ use tonic::{Request, Response, Status, Streaming};
 
 /// Largest fragment accepted, in steps.
 pub const MAX_FRAGMENT_STEPS: usize = 65_536;
+
+/// How long a fragment of an embedding version the learner has not seen yet waits for the
+/// embedder's stream to bring it (an actor may hear of a new version a moment before the
+/// learner does), before it is refused as unknown.
+pub const EMBEDDING_GRACE: Duration = Duration::from_secs(2);
 
 /// What the learner thread is told.
 #[derive(Debug)]
@@ -32,6 +40,7 @@ pub(super) enum Input {
 #[derive(Debug, Clone, Default)]
 pub(super) struct PolicyState {
     pub(super) snapshot: Option<Arc<PolicySnapshot>>,
+    /// The open evaluation request; only the stream of the actor it names carries it.
     pub(super) evaluate: Option<pb::EvalRequest>,
     pub(super) finished: bool,
 }
@@ -41,14 +50,37 @@ pub(super) struct PolicyState {
 pub struct LearnerService {
     pub(super) x_dim: usize,
     pub(super) actions: ActionSpace,
+    /// `ppo.max_abs_reward`.
+    pub(super) max_abs_reward: f32,
     pub(super) version: Arc<AtomicU64>,
+    /// The highest embedding version the embedder has published to this learner (None: a
+    /// run without an embedder, whose fragments carry version 0).
+    pub(super) embedding: Option<watch::Receiver<u64>>,
     pub(super) queue: mpsc::Sender<Input>,
     pub(super) state: watch::Receiver<PolicyState>,
     pub(super) stopping: watch::Receiver<bool>,
 }
 
 impl LearnerService {
-    fn check(&self, index: u64, msg: pb::RolloutFragment) -> Result<RolloutFragment, RpcError> {
+    /// The fragment, or why it is refused (logged).
+    async fn check(
+        &self,
+        index: u64,
+        msg: pb::RolloutFragment,
+    ) -> Result<RolloutFragment, RpcError> {
+        let actor = msg.actor_id;
+        let checked = self.checked(index, msg).await;
+        if let Err(e) = &checked {
+            tracing::warn!("learner: a fragment of actor {actor} refused: {e}");
+        }
+        checked
+    }
+
+    async fn checked(
+        &self,
+        index: u64,
+        msg: pb::RolloutFragment,
+    ) -> Result<RolloutFragment, RpcError> {
         if msg.rewards.len() > MAX_FRAGMENT_STEPS {
             return Err(RpcError::ResourceExhausted(format!(
                 "fragment {index}: {} steps, at most {MAX_FRAGMENT_STEPS}",
@@ -58,7 +90,7 @@ impl LearnerService {
         let bad = |e: String| RpcError::InvalidArgument(format!("fragment {index}: {e}"));
         let fragment = RolloutFragment::try_from(msg).map_err(|e| bad(e.to_string()))?;
         fragment
-            .validate(self.x_dim, &self.actions)
+            .validate(self.x_dim, &self.actions, self.max_abs_reward)
             .map_err(|e| bad(e.to_string()))?;
         let current = self.version.load(Ordering::Acquire);
         if fragment.policy_version > current {
@@ -67,7 +99,34 @@ impl LearnerService {
                 fragment.policy_version
             )));
         }
+        let embedding = fragment.embedding_version;
+        if let Err(published) = self.embedding_published(embedding).await {
+            return Err(bad(format!(
+                "unknown embedding version {embedding} (the embedder has published up to \
+                 {published})"
+            )));
+        }
         Ok(fragment)
+    }
+
+    /// Whether the embedder has published `version` (0, no embedding, always counts), waiting
+    /// at most [`EMBEDDING_GRACE`] for it to arrive; the highest version published otherwise.
+    async fn embedding_published(&self, version: u64) -> Result<(), u64> {
+        let Some(published) = &self.embedding else {
+            return if version == 0 { Ok(()) } else { Err(0) };
+        };
+        let mut published = published.clone();
+        let arrived = tokio::time::timeout(
+            EMBEDDING_GRACE,
+            published.wait_for(|&newest| newest >= version),
+        )
+        .await
+        .is_ok_and(|seen| seen.is_ok());
+        if arrived {
+            Ok(())
+        } else {
+            Err(*published.borrow())
+        }
     }
 }
 
@@ -77,17 +136,19 @@ impl pb::learner_server::Learner for LearnerService {
         &self,
         request: Request<Streaming<pb::RolloutFragment>>,
     ) -> Result<Response<pb::PushSummary>, Status> {
-        let accepted =
-            net::receive_all(request.into_inner(), &self.stopping, "learner", |i, msg| {
-                let checked = self.check(i, msg);
-                async move {
-                    self.queue
-                        .send(Input::Fragment(Box::new(checked?)))
-                        .await
-                        .map_err(|_| RpcError::shutting_down("learner").into())
-                }
-            })
-            .await?;
+        let accepted = net::receive_all(
+            request.into_inner(),
+            &self.stopping,
+            "learner",
+            |i, msg| async move {
+                let checked = self.check(i, msg).await?;
+                self.queue
+                    .send(Input::Fragment(Box::new(checked)))
+                    .await
+                    .map_err(|_| RpcError::shutting_down("learner").into())
+            },
+        )
+        .await?;
         Ok(Response::new(pb::PushSummary {
             accepted,
             rejected: 0,
@@ -98,9 +159,10 @@ impl pb::learner_server::Learner for LearnerService {
 
     async fn watch_policy(
         &self,
-        _request: Request<pb::WatchRequest>,
+        request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
+        let watcher = request.into_inner().actor_id;
         let (mut sent_version, mut sent_eval) = (None, None);
         let stream = net::watch_stream(self.state.clone(), &self.stopping, move |now| {
             let mut events = Vec::new();
@@ -111,6 +173,7 @@ impl pb::learner_server::Learner for LearnerService {
                 events.extend(wire::policy_chunks(s).into_iter().map(Event::Chunk));
             }
             if let Some(e) = &now.evaluate
+                && e.actor_id == watcher
                 && sent_eval != Some(e.request_id)
             {
                 sent_eval = Some(e.request_id);
@@ -131,14 +194,24 @@ impl pb::learner_server::Learner for LearnerService {
         &self,
         request: Request<pb::EvalReport>,
     ) -> Result<Response<pb::Ack>, Status> {
-        let (report, id) = EvalReport::from_wire(request.into_inner())
+        let msg = request.into_inner();
+        let actor = msg.actor_id;
+        let (report, id) = EvalReport::from_wire(msg)
             .map_err(|e| RpcError::InvalidArgument(format!("eval report: {e}")))?;
-        let asked = self.state.borrow().evaluate.map(|e| e.request_id);
-        if asked != Some(id) {
-            return Err(RpcError::FailedPrecondition(format!(
+        let open = self.state.borrow().evaluate;
+        let refused = match open {
+            Some(asked) if asked.request_id == id && asked.actor_id == actor => None,
+            Some(asked) if asked.request_id == id => Some(RpcError::PermissionDenied(format!(
+                "evaluation request {id} asked actor {}, not actor {actor}",
+                asked.actor_id
+            ))),
+            _ => Some(RpcError::FailedPrecondition(format!(
                 "no evaluation request {id} is open"
-            ))
-            .into());
+            ))),
+        };
+        if let Some(e) = refused {
+            tracing::warn!("learner: an evaluation report of actor {actor} refused: {e}");
+            return Err(e.into());
         }
         self.queue
             .send(Input::Eval(report, id))

@@ -10,8 +10,10 @@
 //! Embedding versions: a fragment computed under an older embedding than the newest one seen
 //! is dropped, and the first fragment of a newer embedding drops the partial batch gathered
 //! under the old one (its `x` and `e` mean something else now); both count as
-//! `dropped_embedding`. A restarted learner resumes from `checkpoints/policy-latest.bpk` with
-//! its version, so actors that kept running stay valid.
+//! `dropped_embedding`. A fragment of an embedding version the embedder has not published is
+//! refused (after a short grace for the learner to hear of it). A restarted learner resumes
+//! from `checkpoints/policy-latest.ckpt`: the weights with their version, so actors that kept
+//! running stay valid, and the training state (optimiser, scaler, step accounts, wall time).
 //! A fresh run (neither resumed nor warm-started) first pre-trains on logged purchases where
 //! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
 //! actors wait for.
@@ -25,7 +27,7 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
-use jsae_proto::run_dir::RunDir;
+use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
@@ -54,8 +56,10 @@ pub struct LearnerOptions {
     /// Logged purchases a fresh run's policy learns from before its first snapshot, where
     /// the settings ask (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`).
     pub logged: Option<Arc<LoggedPurchases>>,
-    /// A stopped run continued (`jsae train --resume`): its actors count from zero again, so
-    /// the learner counts on from the last metrics.csv row's env steps and wall time.
+    /// A stopped run continued (`jsae train --resume`): there must be a checkpoint. Its actors
+    /// count from zero again, in new incarnations; the learner counts on from the
+    /// checkpoint's env steps and wall time (from the last metrics.csv row's where the
+    /// checkpoint carries no training state).
     pub resume: bool,
     /// The Prometheus families the learner thread updates (served where `--metrics-listen`
     /// asks).
@@ -94,11 +98,17 @@ pub async fn serve(
     std::fs::create_dir_all(out.checkpoints().path())?;
     let mut learner = Learner::for_run(&config);
     let mut started = Instant::now();
-    let resumed = match latest_checkpoint(&out) {
+    let resumed = match out.checkpoints().read_latest_checkpoint(Weights::Policy) {
         Some(s) => {
-            learner.restore(&s)?;
+            let wall = learner.resume(&s)?;
             tracing::info!("resuming from the policy checkpoint, version {}", s.version);
-            if options.resume {
+            if let Some(wall) = wall {
+                started = crate::metrics::run_started(wall);
+                tracing::info!(
+                    "the run goes on from {} env steps and {wall:.1} s",
+                    learner.env_steps()
+                );
+            } else if options.resume {
                 let point = ResumePoint::of(&out)?;
                 learner.count_steps_from(point.env_steps);
                 started = point.started();
@@ -128,10 +138,14 @@ pub async fn serve(
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
     let (stop_tx, stop_rx) = watch::channel(false);
     let version = Arc::new(AtomicU64::new(learner.version()));
+    // the highest embedding version published (fragments of a higher one are refused)
+    let (published_tx, published_rx) = watch::channel(0u64);
     let service = LearnerService {
         x_dim: learner.policy().input_dim(),
         actions: learner.head().action_space(),
+        max_abs_reward: config.ppo.max_abs_reward,
         version: version.clone(),
+        embedding: options.embedder.is_some().then_some(published_rx),
         queue: queue_tx.clone(),
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
@@ -143,6 +157,11 @@ pub async fn serve(
         tokio::spawn(async move {
             let follow = client::watch_embedding(&security, &url, |s| {
                 let queue = queue.clone();
+                published_tx.send_if_modified(|newest| {
+                    let newer = s.version > *newest;
+                    *newest = (*newest).max(s.version);
+                    newer
+                });
                 async move { queue.send(Input::Embedding(s)).await.is_ok() }
             });
             tokio::select! {

@@ -1,14 +1,14 @@
 //! The learner's training thread: it owns the [`Learner`] and the run directory (metrics.csv
-//! per update, the latest policy checkpoint before each snapshot is published, summary.json
-//! at the end) and ends the run: at `env_steps` it asks the actors for deterministic
-//! evaluation episodes, writes the summary on the first report and tells the actors to
-//! finish.
+//! per update, the latest policy checkpoint with the training state before each snapshot is
+//! published, summary.json at the end) and ends the run: at `env_steps` it asks the actor
+//! whose fragment reached them for deterministic evaluation episodes (a request with a random
+//! id), writes the summary on its report and tells the actors to finish.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
-use jsae_proto::run_dir::{RunDir, Weights};
+use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
 use jsae_proto::settings::TrainConfig;
 use jsae_proto::wire::pb;
 use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
@@ -41,10 +41,23 @@ pub(super) struct LearnerLoop {
 }
 
 impl LearnerLoop {
-    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> std::io::Result<()> {
+    /// Writes the checkpoint (the weights with the training state at this wall time), then
+    /// publishes the snapshot.
+    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> anyhow::Result<()> {
+        let saved = LatestCheckpoint {
+            version: snapshot.version,
+            weights: snapshot.bytes,
+            state: self
+                .learner
+                .training_state(self.started.elapsed().as_secs_f64())?,
+        };
         self.out
             .checkpoints()
-            .write_latest(Weights::Policy, snapshot.version, &snapshot.bytes)?;
+            .write_latest_checkpoint(Weights::Policy, &saved)?;
+        let snapshot = PolicySnapshot {
+            version: saved.version,
+            bytes: saved.weights,
+        };
         self.version.store(snapshot.version, Ordering::Release);
         let snapshot = Arc::new(snapshot);
         self.publish.send_modify(|s| s.snapshot = Some(snapshot));
@@ -59,16 +72,13 @@ impl LearnerLoop {
         }
         let first = self.learner.snapshot()?;
         self.publish_snapshot(first)?;
-        let request = pb::EvalRequest {
-            request_id: self.started.elapsed().as_nanos() as u64 | 1,
-            episodes: self.config.eval_episodes as u32,
-            seed: self.config.eval_seed(),
-        };
-        let mut evaluating = false;
+        // the open evaluation request, once the run's env steps are reached
+        let mut asked: Option<pb::EvalRequest> = None;
         while let Some(input) = queue.blocking_recv() {
             match input {
                 Input::Embedding(s) => self.embedding = Some(s),
-                Input::Fragment(f) if !evaluating => {
+                Input::Fragment(f) if asked.is_none() => {
+                    let actor_id = f.actor_id;
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
                             let wall = self.started.elapsed().as_secs_f64();
@@ -100,17 +110,24 @@ impl LearnerLoop {
                         queue_depth: queue.len(),
                     });
                     if self.learner.env_steps() >= self.config.env_steps {
-                        evaluating = true;
+                        let request = pb::EvalRequest {
+                            request_id: jsae_proto::random_id(),
+                            episodes: self.config.eval_episodes as u32,
+                            seed: self.config.eval_seed(),
+                            actor_id,
+                        };
                         tracing::info!(
-                            "{} env steps reached: asking the actors for {} evaluation episodes",
+                            "{} env steps reached: asking actor {actor_id} for {} evaluation \
+                             episodes",
                             self.learner.env_steps(),
                             request.episodes
                         );
+                        asked = Some(request);
                         self.publish.send_modify(|s| s.evaluate = Some(request));
                     }
                 }
                 Input::Fragment(_) => {}
-                Input::Eval(report, id) if evaluating && id == request.request_id => {
+                Input::Eval(report, id) if asked.is_some_and(|r| r.request_id == id) => {
                     return self.finish(&report);
                 }
                 Input::Eval(..) => {}

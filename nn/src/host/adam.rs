@@ -23,7 +23,36 @@ pub struct HostAdam {
     moment_2: Vec<Vec<f32>>,
 }
 
+/// What [`HostAdam`] carries from one step to the next: the step count and both moments of
+/// every parameter slice (a checkpoint saves it, so that a restarted learner steps exactly as
+/// the one that stopped would have).
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct AdamMoments {
+    /// Steps taken (the bias corrections' exponent).
+    pub time: i32,
+    /// First moments, one list per parameter slice.
+    pub moment_1: Vec<Vec<f32>>,
+    /// Second moments, likewise.
+    pub moment_2: Vec<Vec<f32>>,
+}
+
 impl HostAdam {
+    /// The state to save.
+    pub fn moments(&self) -> AdamMoments {
+        AdamMoments {
+            time: self.time,
+            moment_1: self.moment_1.clone(),
+            moment_2: self.moment_2.clone(),
+        }
+    }
+
+    /// Continues from saved state (the betas and epsilon stay this optimiser's).
+    pub fn set_moments(&mut self, saved: AdamMoments) {
+        self.time = saved.time;
+        self.moment_1 = saved.moment_1;
+        self.moment_2 = saved.moment_2;
+    }
+
     /// Adam with betas 0.9 / 0.999 and the given epsilon.
     pub fn new(epsilon: f32) -> Self {
         Self {

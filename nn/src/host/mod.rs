@@ -17,7 +17,8 @@ mod sparse;
 use ndarray::{Array1, Array2, ArrayView2, ArrayViewMut2, Axis};
 
 pub use adam::{
-    HostAdam, Rows, add_gradients, clip_scale, global_norm, global_norm_rows, zero_rows,
+    AdamMoments, HostAdam, Rows, add_gradients, clip_scale, global_norm, global_norm_rows,
+    zero_rows,
 };
 pub use dense::product;
 pub use sparse::{HostInput, PairCross, SparseRows, pair_bucket};

@@ -28,7 +28,8 @@ fn newest(dir: &RunDir, kind: Weights, what: &str) -> Result<Vec<u8>, ConfigErro
     let (_, path) = checkpoints
         .newest(kind)
         .ok_or_else(|| invalid(dir.path(), format!("no {what} checkpoint")))?;
-    std::fs::read(&path).map_err(|e| invalid(dir.path(), format!("{}: {e}", path.display())))
+    crate::run_dir::read_weights(&path)
+        .map_err(|e| invalid(dir.path(), format!("{}: {e}", path.display())))
 }
 
 impl TrainConfig {

@@ -24,5 +24,5 @@ pub use envs::{
 };
 pub use flags::{EmbedderFlag, ListenFlag, RunFlags};
 pub use init::InitSource;
-pub use ppo::{EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
+pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
 pub use run::{ConfigError, ConfigFile, ExplorationConfig, TrainConfig};

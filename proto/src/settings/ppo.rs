@@ -89,6 +89,13 @@ pub struct PpoConfig {
     pub tanh_mean: bool,
     /// Scale rewards by a running estimate of the discounted return's std.
     pub reward_scaling: bool,
+    /// The largest reward magnitude a fragment may carry: the learner refuses a fragment with
+    /// a larger one (INVALID_ARGUMENT on the wire, a warning in the log), so that one
+    /// finite but absurd reward (3e38) cannot inflate the reward scaler's statistics and
+    /// poison the run. Default 1e6: far above every environment's step reward (gridworlds
+    /// and the slot machine below 10, MuJoCo below 100, the recommender's item prices in the
+    /// thousands at most); raise it for an environment that pays more.
+    pub max_abs_reward: f32,
     /// Normalise the policy input by running mean and variance (clipped to +-10); the
     /// statistics are part of the policy's weights, snapshots and checkpoints.
     pub normalize_obs: bool,
@@ -141,12 +148,16 @@ impl Default for PpoConfig {
             init_log_std: 0.0,
             tanh_mean: false,
             reward_scaling: true,
+            max_abs_reward: DEFAULT_MAX_ABS_REWARD,
             normalize_obs: false,
             max_policy_lag: 4,
             update: UpdatePath::Fused,
         }
     }
 }
+
+/// [`PpoConfig::max_abs_reward`]'s default.
+pub const DEFAULT_MAX_ABS_REWARD: f32 = 1e6;
 
 /// The entropy bonus's log-std cap for a policy in an action-embedding space (tanh-bounded
 /// mean, E = [-1, 1]^d, g tanh-bounded too). f maps every sample outside E to an action on
@@ -247,6 +258,12 @@ impl PpoConfig {
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }
+        if self.max_abs_reward.is_nan() || self.max_abs_reward <= 0.0 {
+            return Err(format!(
+                "ppo.max_abs_reward must be positive, got {}",
+                self.max_abs_reward
+            ));
+        }
         Ok(())
     }
 }
@@ -284,6 +301,24 @@ mod tests {
             change(&mut c);
             let reason = c.validate().expect_err("refused").to_string();
             assert!(reason.contains("ppo.pair_"), "{reason}");
+        }
+    }
+
+    #[test]
+    fn the_reward_bound_is_generous_and_must_be_positive() {
+        for env in [
+            EnvName::HalfCheetah,
+            EnvName::Recommender,
+            EnvName::Gridworld,
+        ] {
+            let c = TrainConfig::defaults(env, Algo::Jsae);
+            assert_eq!(c.ppo.max_abs_reward, DEFAULT_MAX_ABS_REWARD);
+        }
+        for bad in [0.0, -1.0, f32::NAN] {
+            let mut c = TrainConfig::defaults(EnvName::Gridworld, Algo::Ppo);
+            c.ppo.max_abs_reward = bad;
+            let reason = c.validate().expect_err("not positive").to_string();
+            assert!(reason.contains("ppo.max_abs_reward"), "{reason}");
         }
     }
 

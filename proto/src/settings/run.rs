@@ -492,6 +492,27 @@ impl TrainConfig {
         self.embedding.pretrain_budget(&self.spaces().1)
     }
 
+    /// Env steps each actor plays at random before the first embedding (its share of the
+    /// pre-training budget; 0 for a run without an embedder): it then waits for the
+    /// embedding. The actor sends no fragment for these steps.
+    pub fn random_play_share(&self) -> u64 {
+        if !self.algo.representation().needs_embedder() {
+            return 0;
+        }
+        self.pretrain_budget().div_ceil(self.actors.max(1)) as u64
+    }
+
+    /// Env steps of random play the learner credits beyond the fragments' own lengths, over
+    /// the whole run: the pre-training budget plus one rollout round of every actor (each
+    /// actor stops only after the round that reaches its share); 0 for a run without an
+    /// embedder, whose actors play no random steps.
+    pub fn random_play_allowance(&self) -> u64 {
+        if !self.algo.representation().needs_embedder() {
+            return 0;
+        }
+        (self.pretrain_budget() + self.round_steps()) as u64
+    }
+
     /// The configuration as TOML (what `config.toml` holds).
     pub fn to_toml(&self) -> String {
         toml::to_string_pretty(self).unwrap_or_else(|e| format!("# not serialisable: {e}\n"))
