@@ -11,7 +11,7 @@ use jsae_proto::StateBatch;
 use jsae_proto::settings::{RecommenderConfig, SessionSource};
 
 use super::ngram::{Catalogue, NgramModel};
-use super::sessions::Session;
+use super::sessions::{Session, id_hash};
 use super::{RecsysError, instacart, rees46, store, synthetic};
 
 /// The data file the settings name (the fetched Instacart sample by default).
@@ -50,21 +50,11 @@ pub fn load_sessions(config: &RecommenderConfig) -> Result<Vec<Session>, RecsysE
     }
 }
 
-/// Whether a session of the data is held out for offline evaluation: FNV-1a (64 bit) of its
-/// id, mixed by SplitMix64's finaliser (FNV alone leaves the high bits of ids that differ in
-/// their last characters, `user-1`, `user-2`, ..., nearly equal), as a share of the hash
-/// range, below `share`. The same ids give the same split on every machine and whatever the
-/// order of the file.
+/// Whether a session of the data is held out for offline evaluation: the [`id_hash`] of its
+/// id, as a share of the hash range, below `share`. The same ids give the same split on
+/// every machine and whatever the order of the file.
 pub fn is_held_out(session_id: &str, share: f64) -> bool {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for b in session_id.bytes() {
-        h ^= u64::from(b);
-        h = h.wrapping_mul(0x0100_0000_01b3);
-    }
-    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-    h ^= h >> 31;
-    (h as f64) < share * (u64::MAX as f64)
+    (id_hash(session_id) as f64) < share * (u64::MAX as f64)
 }
 
 /// The data's sessions split into (training, held out) by [`is_held_out`] with the settings'

@@ -9,6 +9,7 @@ pub mod data;
 pub mod env;
 pub mod instacart;
 pub mod ngram;
+pub mod ngram_counts;
 pub mod rees46;
 pub mod sessions;
 pub mod store;
@@ -17,6 +18,7 @@ pub mod synthetic;
 pub use data::{ModelHandle, held_out_sessions, is_held_out, model_handle};
 pub use env::RecommenderEnv;
 pub use ngram::{Catalogue, NgramModel};
+pub use ngram_counts::NgramCounts;
 pub use sessions::{Purchase, Session};
 
 /// Why the recommender's data could not be had.
