@@ -285,6 +285,7 @@ impl Recommender {
                 .lock()
                 .unwrap_or_else(|p| p.into_inner())
                 .append(sessions)
+                .map(|_| ())
                 .map_err(|e| RpcError::Internal(format!("session store: {e}"))),
             _ => Ok(()),
         }
