@@ -1,6 +1,6 @@
 //! `SubmitSessions` over real loopback gRPC against a Recommender with a session store
-//! (serving the popular reference policy: no run needed): a call cancelled mid-stream stores
-//! nothing, a session_id is stored once across calls and restarts, and the limits on bytes
+//! (serving the popular reference policy: no run needed): a call whose stream the client
+//! resets (cancels) mid-way stores nothing, a session_id is stored once across calls and restarts, and the limits on bytes
 //! per message, bytes per call and calls at once answer RESOURCE_EXHAUSTED with nothing of
 //! the call stored.
 
@@ -151,9 +151,13 @@ async fn a_cancelled_call_stores_nothing_and_a_session_id_is_stored_once_across_
     );
     let before = store_state(&store);
 
-    // a large call, still streaming when the client cancels it
+    // a large call, still streaming when the client cancels it. A cancel is a reset of the
+    // stream (RST_STREAM) before its end; this client resets it by failing to encode a
+    // message (over its own 1 MiB limit). (Dropping a tonic call while its stream is open
+    // would not do: the stream still ends cleanly when its sender goes, then is reset, and a
+    // call that ended cleanly is committed.)
     let (tx, rx) = mpsc::channel(4);
-    let mut client = served.client.clone();
+    let mut client = served.client.clone().max_encoding_message_size(1 << 20);
     let call = tokio::spawn(async move { client.submit_sessions(ReceiverStream::new(rx)).await });
     for i in 0..100 {
         tx.send(session(&format!("big-{i}"), 1_000, 100))
@@ -162,8 +166,8 @@ async fn a_cancelled_call_stores_nothing_and_a_session_id_is_stored_once_across_
     }
     // the server writes the call to its staging file as it arrives: it holds no stream
     wait_for("10 MB staged", || staging(&store).1 >= 10_000_000).await;
-    call.abort();
-    assert!(call.await.expect_err("cancelled").is_cancelled());
+    tx.send(session("reset", 10_000, 256)).await.expect("sent");
+    call.await.expect("task").expect_err("the stream was reset");
     drop(tx);
     wait_for("the cancelled call's staging file to go", || {
         staging(&store).0 == 0
