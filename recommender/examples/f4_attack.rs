@@ -3,7 +3,8 @@
 //!
 //! 1. one call of 500 maximum-size sessions (10,000 purchases of 256-byte ids, about 2.8 MB
 //!    each), cancelled half-way (the service refuses it at MAX_CALL_BYTES before that);
-//! 2. a call within the limits, cancelled after 20 such sessions;
+//! 2. a call within the limits, cancelled after 22 such sessions (a cancel is a reset of the
+//!    stream before its end: the client resets it with a message over its own limit);
 //! 3. MAX_CONCURRENT_CALLS calls of them at once, and one more;
 //!
 //! after which the store must hold what it held before. Then the store is filled with
@@ -22,7 +23,7 @@ use std::time::{Duration, Instant};
 
 use clap::Parser;
 use jsae_proto::wire::pb;
-use jsae_recommender::{MAX_CALL_BYTES, MAX_CONCURRENT_CALLS, RecommenderArgs};
+use jsae_recommender::{MAX_CALL_BYTES, MAX_CONCURRENT_CALLS, MAX_REQUEST_BYTES, RecommenderArgs};
 use tokio_stream::wrappers::ReceiverStream;
 
 type Client = pb::recommender_client::RecommenderClient<tonic::transport::Channel>;
@@ -163,8 +164,12 @@ impl Service {
         println!("{step:<58} RSS {rss:7.1} MB   peak (VmHWM) {hwm:7.1} MB");
     }
 
+    /// A client that encodes messages up to the service's limit and fails on larger ones.
     async fn client(&self) -> Client {
-        Client::connect(self.addr.clone()).await.expect("connects")
+        Client::connect(self.addr.clone())
+            .await
+            .expect("connects")
+            .max_encoding_message_size(MAX_REQUEST_BYTES)
     }
 }
 
@@ -188,11 +193,14 @@ async fn call(client: &Client, prefix: &str, count: usize, cancel_after: usize) 
     let mut sent = 0;
     for i in 0..count {
         if sent == cancel_after {
-            // the call goes (its stream reset) before its stream could end cleanly
-            call.abort();
-            let _ = call.await;
-            drop(tx);
-            return format!("cancelled by the client after {sent} sessions");
+            // a cancel is a reset of the stream before its end: this client resets it by
+            // failing to encode a message over its own limit (dropping the tonic call would
+            // end the stream cleanly first, which commits it)
+            let mut reset = max_session("reset");
+            reset.purchases.extend(max_session("reset").purchases);
+            let _ = tx.send(reset).await;
+            let ended = answered_after(call.await, sent);
+            return format!("cancelled (stream reset by the client): {ended}");
         }
         let session = max_session(&format!("{prefix}-{i}"));
         tokio::select! {
