@@ -8,7 +8,7 @@ use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::wire::pb;
 
 use jsae_envs::recsys::Session;
-use jsae_recommender::MAX_SESSIONS_PER_CALL;
+use jsae_recommender::{MAX_CALL_BYTES, MAX_SESSIONS_PER_CALL};
 
 /// The client's command line.
 #[derive(Debug, Clone, clap::Args)]
@@ -92,8 +92,35 @@ pub fn read_sessions(reader: impl BufRead, name: &str) -> Result<Vec<Session>, S
     Ok(sessions)
 }
 
-/// Streams the sessions in calls of at most [`MAX_SESSIONS_PER_CALL`] and adds up the
-/// service's summaries (the rejected ones, with the service's reasons, are in `errors`).
+/// The sessions cut into calls of at most [`MAX_SESSIONS_PER_CALL`] sessions and
+/// [`MAX_CALL_BYTES`] encoded bytes (a session over that alone goes in a call of its own,
+/// for the service to refuse).
+fn calls(sessions: Vec<Session>) -> Vec<Vec<pb::Session>> {
+    let mut calls: Vec<Vec<pb::Session>> = Vec::new();
+    let mut bytes = 0;
+    for s in sessions.into_iter().map(pb::Session::from) {
+        let n = prost::Message::encoded_len(&s) as u64;
+        match calls.last_mut() {
+            Some(call)
+                if (call.len() as u64) < MAX_SESSIONS_PER_CALL && bytes + n <= MAX_CALL_BYTES =>
+            {
+                bytes += n;
+                call.push(s);
+            }
+            _ => {
+                bytes = n;
+                calls.push(vec![s]);
+            }
+        }
+    }
+    calls
+}
+
+/// Streams the sessions in calls within the service's limits ([`calls`]) and adds up the
+/// service's summaries (the rejected ones, with the service's reasons, are in `errors`;
+/// sessions stored already are counted in `sessions_duplicate`). A call the service refuses
+/// stores nothing: the error says how many calls before it were stored, and sending the file
+/// again stores only the sessions not stored yet.
 pub async fn submit(
     addr: &str,
     security: &Security,
@@ -104,27 +131,25 @@ pub async fn submit(
         .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES)
         .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     let mut total = pb::SubmitSummary::default();
-    let mut sessions = sessions.into_iter().map(pb::Session::from).peekable();
     let mut offset = 0u64;
-    while sessions.peek().is_some() {
-        let call: Vec<pb::Session> = sessions
-            .by_ref()
-            .take(MAX_SESSIONS_PER_CALL as usize)
-            .collect();
+    for call in calls(sessions) {
         let sent = call.len() as u64;
         let summary = client
             .submit_sessions(tokio_stream::iter(call))
             .await
             .map_err(|s| {
                 format!(
-                    "{} (after {} sessions accepted)",
+                    "{} (sessions {offset}.. of the file; the {} before were stored, {} \
+                     were stored already)",
                     crate::oneshot::reason(&url, &s),
-                    total.sessions_accepted
+                    total.sessions_accepted,
+                    total.sessions_duplicate
                 )
             })?
             .into_inner();
         total.sessions_accepted += summary.sessions_accepted;
         total.sessions_rejected += summary.sessions_rejected;
+        total.sessions_duplicate += summary.sessions_duplicate;
         total.purchases_accepted += summary.purchases_accepted;
         // the service numbers sessions within a call; renumber them within the file
         total
@@ -135,6 +160,7 @@ pub async fn submit(
     Ok(serde_json::json!({
         "sessions_accepted": total.sessions_accepted,
         "sessions_rejected": total.sessions_rejected,
+        "sessions_duplicate": total.sessions_duplicate,
         "purchases_accepted": total.purchases_accepted,
         "errors": total.errors,
     }))
@@ -216,6 +242,29 @@ mod tests {
         )
         .expect_err("line 2 is no session");
         assert!(bad.starts_with("f:2:"), "{bad}");
+    }
+
+    #[test]
+    fn sessions_are_cut_into_calls_within_the_services_byte_limit() {
+        // about 2.6 MB each: 25 fit in MAX_CALL_BYTES (64 MiB)
+        let big = |i: usize| Session {
+            session_id: format!("s{i}"),
+            purchases: (0..10_000)
+                .map(|_| jsae_envs::recsys::Purchase {
+                    item_id: "x".repeat(250),
+                    price: 1.0,
+                    time_unix_ms: 0,
+                })
+                .collect(),
+        };
+        let calls = calls((0..60).map(big).collect());
+        let sizes: Vec<usize> = calls.iter().map(Vec::len).collect();
+        assert_eq!(sizes, [25, 25, 10]);
+        let bytes: u64 = calls[0]
+            .iter()
+            .map(|s| prost::Message::encoded_len(s) as u64)
+            .sum();
+        assert!(bytes <= MAX_CALL_BYTES);
     }
 
     #[test]

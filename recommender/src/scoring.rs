@@ -1,6 +1,7 @@
 //! The Recommender's core, without the transport: the weights in use (swapped in whole as new
 //! versions arrive), `recommend` (the state from a purchase history, then JSAE's nearest items
-//! to the policy's mean action embedding or PPO's most likely items) and the session store.
+//! to the policy's mean action embedding or PPO's most likely items) and the session store's
+//! writer (`SubmitSessions` stages and commits through it: `crate::submit`).
 //!
 //! - JSAE: `x = phi(state)`, the policy's mean action embedding `e`, then the `k` items whose
 //!   `g` rows are nearest to `e` (score: minus the distance). PPO: the `k` most likely items
@@ -13,8 +14,9 @@
 use std::sync::{Arc, Mutex, RwLock};
 
 use jsae_agent::{SwapError, Weights};
-use jsae_envs::recsys::sessions::{MAX_ID_BYTES, Session};
-use jsae_envs::recsys::store::SessionStore;
+use jsae_envs::recsys::sessions::MAX_ID_BYTES;
+use jsae_envs::recsys::staging::{StagedSessions, StagingArea};
+use jsae_envs::recsys::store::{CommitOutcome, SessionStore};
 use jsae_envs::recsys::{ModelHandle, NgramModel, RecsysError, model_handle};
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_proto::settings::{EnvName, TrainConfig};
@@ -24,11 +26,6 @@ use crate::baseline::PolicyChoice;
 
 /// Longest `history` a Recommend request may carry.
 pub const MAX_HISTORY: usize = 1000;
-/// Most sessions one SubmitSessions call may carry; more gets RESOURCE_EXHAUSTED (the
-/// sessions before are kept).
-pub const MAX_SESSIONS_PER_CALL: u64 = 100_000;
-/// Errors listed in a SubmitSummary (the count of rejected sessions is always exact).
-pub const MAX_ERRORS_LISTED: usize = 100;
 /// One recommendation.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Recommendation {
@@ -61,7 +58,8 @@ pub struct Recommender {
     states: StateSpace,
     /// The weights in use, replaced whole (readers keep the `Arc` they took).
     weights: RwLock<Arc<Weights>>,
-    store: Option<Mutex<SessionStore>>,
+    /// The session store's writer, and where calls stage their sessions.
+    store: Option<(Mutex<SessionStore>, StagingArea)>,
 }
 
 impl std::fmt::Debug for Recommender {
@@ -96,7 +94,9 @@ impl Recommender {
         let store = if r.store_dir.as_os_str().is_empty() {
             None
         } else {
-            Some(Mutex::new(SessionStore::open(&r.store_dir)?))
+            let store = SessionStore::open(&r.store_dir)?;
+            let staging = store.staging();
+            Some((Mutex::new(store), staging))
         };
         let weights = Weights::new(config, &states, &actions, &device.device());
         Ok(Self {
@@ -278,16 +278,26 @@ impl Recommender {
         }
     }
 
-    /// Appends accepted sessions to the store (synced before it returns).
-    pub(crate) fn store(&self, sessions: &[Session]) -> Result<(), RpcError> {
-        match &self.store {
-            Some(store) if !sessions.is_empty() => store
-                .lock()
-                .unwrap_or_else(|p| p.into_inner())
-                .append(sessions)
-                .map_err(|e| RpcError::Internal(format!("session store: {e}"))),
-            _ => Ok(()),
-        }
+    /// A staging file for one SubmitSessions call (None without a store: nothing is kept).
+    pub(crate) fn stage(&self) -> Result<Option<StagedSessions>, RpcError> {
+        self.store
+            .as_ref()
+            .map(|(_, staging)| staging.stage())
+            .transpose()
+            .map_err(|e| RpcError::Internal(format!("session store: {e}")))
+    }
+
+    /// Commits a call's staged sessions to the store, all or none (this waits for the disk
+    /// and for other calls' commits: call it off the async threads).
+    pub(crate) fn commit(&self, staged: StagedSessions) -> Result<CommitOutcome, RpcError> {
+        let Some((store, _)) = &self.store else {
+            return Ok(CommitOutcome::default());
+        };
+        store
+            .lock()
+            .unwrap_or_else(|p| p.into_inner())
+            .commit(staged)
+            .map_err(|e| RpcError::Internal(format!("session store: {e}")))
     }
 
     /// Whether sessions are kept (a session store is configured).

@@ -185,7 +185,7 @@ def main():
 
     seen["submit_empty"] = expect_code(lambda: stub.SubmitSessions(iter([]), timeout=10),
                                        grpc.StatusCode.INVALID_ARGUMENT, "SubmitSessions empty")
-    huge = session("huge", [("x" * 200, 1.0)] * 100_000)  # about 21 MB: over the 16 MiB limit
+    huge = session("huge", [("x" * 200, 1.0)] * 100_000)  # about 21 MB: over MAX_REQUEST_BYTES (4 MiB)
     seen["submit_huge"] = expect_code(lambda: stub.SubmitSessions(iter([huge]), timeout=30),
                                       grpc.StatusCode.RESOURCE_EXHAUSTED, "SubmitSessions huge")
     print(json.dumps(seen))

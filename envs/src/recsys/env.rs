@@ -11,7 +11,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::RecsysError;
-use super::data::{ModelHandle, model_handle};
+use super::model_handle::{ModelHandle, model_handle};
 use super::ngram::NgramModel;
 use crate::{ActionRef, Env, EnvConfig, Step};
 

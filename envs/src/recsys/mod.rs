@@ -1,22 +1,29 @@
 //! The recommender's environment: purchase sessions from three sources (REES46 CSV, the
-//! Instacart sample, a seeded generator), the session store that `SubmitSessions` appends to,
-//! the n-gram MDP built from them (Shani et al.), and the environment over it. The gRPC
-//! Recommender service is the `jsae-recommender` crate.
+//! Instacart sample, a seeded generator), the session store that `SubmitSessions` commits to
+//! (`store`, with each call's `staging`), the n-gram MDP built from them (Shani et al.:
+//! `ngram_counts` made into `ngram`, kept current by `model_handle`, the store's part
+//! checkpointed by `model_checkpoint`), and the environment over it. The gRPC Recommender service is the `jsae-recommender` crate.
 
 use std::path::PathBuf;
 
 pub mod data;
 pub mod env;
 pub mod instacart;
+pub mod model_checkpoint;
+pub mod model_handle;
 pub mod ngram;
+pub mod ngram_counts;
 pub mod rees46;
 pub mod sessions;
+pub mod staging;
 pub mod store;
 pub mod synthetic;
 
-pub use data::{ModelHandle, held_out_sessions, is_held_out, model_handle};
+pub use data::{held_out_sessions, is_held_out};
 pub use env::RecommenderEnv;
+pub use model_handle::{ModelHandle, model_handle};
 pub use ngram::{Catalogue, NgramModel};
+pub use ngram_counts::NgramCounts;
 pub use sessions::{Purchase, Session};
 
 /// Why the recommender's data could not be had.

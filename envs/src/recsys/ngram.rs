@@ -10,6 +10,7 @@ use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
+use super::ngram_counts::{NgramCounts, pair};
 use super::sessions::Session;
 
 /// The items that are actions: slot `k` is action `k`; slot `capacity` stands for "none"
@@ -35,12 +36,20 @@ impl Catalogue {
                 *counts.entry(p.item_id.as_str()).or_insert(0) += 1;
             }
         }
-        let mut ranked: Vec<(&str, u64)> = counts.into_iter().collect();
-        ranked.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(b.0)));
+        Self::top(counts, capacity)
+    }
+
+    /// The `capacity` items with the most purchases in `counts` (ties: smaller id first).
+    pub fn top<S: AsRef<str>>(counts: impl IntoIterator<Item = (S, u64)>, capacity: usize) -> Self {
+        let mut ranked: Vec<(S, u64)> = counts.into_iter().collect();
+        ranked.sort_unstable_by(|a, b| b.1.cmp(&a.1).then(a.0.as_ref().cmp(b.0.as_ref())));
         ranked.truncate(capacity);
         Self::from_ids(
             capacity,
-            ranked.into_iter().map(|(id, _)| id.to_owned()).collect(),
+            ranked
+                .into_iter()
+                .map(|(id, _)| id.as_ref().to_owned())
+                .collect(),
         )
     }
 
@@ -123,8 +132,8 @@ struct Continuations {
 }
 
 impl Continuations {
-    fn from_map(map: HashMap<u32, u32>) -> Self {
-        let mut pairs: Vec<(u32, u32)> = map.into_iter().collect();
+    fn from_map(map: &HashMap<u32, u32>) -> Self {
+        let mut pairs: Vec<(u32, u32)> = map.iter().map(|(&k, &c)| (k, c)).collect();
         pairs.sort_unstable();
         let mut total = 0;
         let cum = pairs
@@ -173,10 +182,6 @@ pub struct NgramModel {
     sessions: usize,
 }
 
-fn pair(a: u32, b: u32) -> u64 {
-    (u64::from(a) << 32) | u64::from(b)
-}
-
 impl NgramModel {
     /// Counts the purchases of `sessions` (restricted to catalogue items, in order) under
     /// the settings of `config`. Fails when no session buys a catalogue item.
@@ -185,65 +190,49 @@ impl NgramModel {
         sessions: impl Iterator<Item = &'a Session>,
         config: &RecommenderConfig,
     ) -> Option<Self> {
-        let none = catalogue.none();
-        let n = catalogue.capacity();
-        let mut popularity: HashMap<u32, u32> = HashMap::new();
-        let mut start: HashMap<u32, u32> = HashMap::new();
-        let mut after_one: Vec<HashMap<u32, u32>> = vec![HashMap::new(); n];
-        let mut after_two: HashMap<u64, HashMap<u32, u32>> = HashMap::new();
-        let (mut price_sum, mut price_n) = (vec![0.0; n], vec![0u32; n]);
-        let mut used = 0;
-        let mut seq = Vec::new();
+        let mut counts = NgramCounts::new(catalogue.capacity());
         for s in sessions {
-            seq.clear();
-            for p in &s.purchases {
-                if let Some(k) = catalogue.slot(&p.item_id) {
-                    seq.push(k);
-                    if p.price > 0.0 {
-                        price_sum[k as usize] += p.price;
-                        price_n[k as usize] += 1;
-                    }
-                }
-            }
-            let Some(&first) = seq.first() else { continue };
-            used += 1;
-            *start.entry(first).or_insert(0) += 1;
-            for (t, &item) in seq.iter().enumerate() {
-                *popularity.entry(item).or_insert(0) += 1;
-                if t >= 1 {
-                    let before = if t >= 2 { seq[t - 2] } else { none };
-                    *after_one[seq[t - 1] as usize].entry(item).or_insert(0) += 1;
-                    *after_two
-                        .entry(pair(before, seq[t - 1]))
-                        .or_default()
-                        .entry(item)
-                        .or_insert(0) += 1;
-                }
-            }
+            counts.add(&catalogue, s);
         }
-        if popularity.is_empty() {
+        Self::from_counts(catalogue, &[&counts], config)
+    }
+
+    /// The model of the sum of `parts` (counts over `catalogue`'s slots, e.g. the data's and
+    /// the session store's) under the settings of `config`. Fails when nothing was bought.
+    pub fn from_counts(
+        catalogue: Catalogue,
+        parts: &[&NgramCounts],
+        config: &RecommenderConfig,
+    ) -> Option<Self> {
+        let mut sum = NgramCounts::new(catalogue.capacity());
+        for part in parts {
+            sum.add_counts(part);
+        }
+        if sum.popularity.is_empty() {
             return None;
         }
-        let value = price_sum
+        let value = sum
+            .price_sum
             .iter()
-            .zip(&price_n)
+            .zip(&sum.price_n)
             .map(|(&s, &c)| if c > 0 { s / f64::from(c) } else { 1.0 })
             .collect();
         Some(Self {
             catalogue,
-            popularity: Continuations::from_map(popularity),
-            start: Continuations::from_map(start),
-            after_one: after_one.into_iter().map(Continuations::from_map).collect(),
-            after_two: after_two
-                .into_iter()
-                .map(|(k, m)| (k, Continuations::from_map(m)))
+            popularity: Continuations::from_map(&sum.popularity),
+            start: Continuations::from_map(&sum.start),
+            after_one: sum.after_one.iter().map(Continuations::from_map).collect(),
+            after_two: sum
+                .after_two
+                .iter()
+                .map(|(&k, m)| (k, Continuations::from_map(m)))
                 .collect(),
             value,
             smoothing: config.smoothing,
             mix: config.mix,
             boost: config.boost,
             reward_on: config.reward_on,
-            sessions: used,
+            sessions: sum.sessions(),
         })
     }
 

@@ -32,6 +32,27 @@ pub struct Session {
     pub purchases: Vec<Purchase>,
 }
 
+/// A stable 64-bit hash of bytes: FNV-1a, mixed by SplitMix64's finaliser (FNV alone leaves
+/// the high bits of ids that differ in their last characters, `user-1`, `user-2`, ...,
+/// nearly equal). The same bytes give the same hash on every machine and in every version,
+/// so it may be written to disk.
+pub fn bytes_hash(bytes: &[u8]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        h ^= u64::from(b);
+        h = h.wrapping_mul(0x0100_0000_01b3);
+    }
+    h = (h ^ (h >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    h = (h ^ (h >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    h ^ (h >> 31)
+}
+
+/// The [`bytes_hash`] of an id: the session store's index of stored sessions and the
+/// held-out split are made of it.
+pub fn id_hash(id: &str) -> u64 {
+    bytes_hash(id.as_bytes())
+}
+
 /// Why a session is malformed (CONTRACT.md: empty id, no purchases, an empty item id, a
 /// negative, NaN or infinite price), or over the documented limits.
 pub fn check_session(session: &Session) -> Result<(), String> {
@@ -131,6 +152,10 @@ mod tests {
             (session("s", &[("a", -1.0)]), "price"),
             (session("s", &[("a", f64::NAN)]), "price"),
             (session("s", &[("a", f64::INFINITY)]), "price"),
+            (
+                session("s", &[("a", 1.0); MAX_PURCHASES_PER_SESSION + 1]),
+                "purchases, more than",
+            ),
         ] {
             let err = check_session(&bad).expect_err("malformed");
             assert!(err.contains(reason), "{err}");

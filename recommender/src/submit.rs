@@ -1,0 +1,309 @@
+//! `SubmitSessions`: a call's sessions are checked one at a time, the good ones written to the
+//! call's staging file as they arrive (in batches of [`STAGE_BATCH_BYTES`], off the async
+//! threads), and committed to the session store all at once when the stream ends cleanly. A
+//! call that fails (a broken or cancelled stream, a limit passed, a store error) stores
+//! nothing: its staging file is deleted, and the error says so. Sessions whose `session_id`
+//! is stored already are counted as duplicates, not stored again.
+//!
+//! Memory: a call holds one message, the batch being staged and the ids it staged (8 bytes
+//! each), never its stream. The limits below bound what the calls together hold and write.
+
+use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+
+use jsae_envs::recsys::sessions::{Session, check_session};
+use jsae_envs::recsys::staging::{Staged, StagedSessions};
+use jsae_proto::RpcError;
+use jsae_proto::wire::pb;
+use prost::Message;
+use tonic::{Code, Status, Streaming};
+
+use crate::scoring::Recommender;
+
+/// Largest message the Recommender decodes (4 MiB; a larger one is RESOURCE_EXHAUSTED). A
+/// session at every limit (10,000 purchases of 256-byte ids) takes about 2.8 MB; a
+/// `Recommend` request of 1,000 ids about 260 kB.
+pub const MAX_REQUEST_BYTES: usize = 4 * 1024 * 1024;
+/// Most sessions one call may carry; more is RESOURCE_EXHAUSTED (nothing stored).
+pub const MAX_SESSIONS_PER_CALL: u64 = 100_000;
+/// Most bytes (encoded sessions) one call may carry; more is RESOURCE_EXHAUSTED (nothing
+/// stored). The largest commit a call can ask for.
+pub const MAX_CALL_BYTES: u64 = 64 * 1024 * 1024;
+/// Most bytes all the calls in progress together may have sent (and so staged on disk); a
+/// message past it is RESOURCE_EXHAUSTED for its call (nothing of it stored).
+pub const MAX_BYTES_IN_FLIGHT: u64 = 128 * 1024 * 1024;
+/// Most calls in progress at once; one more is RESOURCE_EXHAUSTED before it reads anything.
+/// Each holds at most one decoded message (up to about 60 MB for 4 MiB of the smallest
+/// purchases, typically a few MB), so this bounds the calls' memory.
+pub const MAX_CONCURRENT_CALLS: usize = 4;
+/// Errors listed in a SubmitSummary (the count of rejected sessions is always exact).
+pub const MAX_ERRORS_LISTED: usize = 100;
+/// Checked sessions gathered before they are written to the staging file together.
+const STAGE_BATCH_BYTES: u64 = 1024 * 1024;
+
+/// What the SubmitSessions calls in progress use, against [`MAX_CONCURRENT_CALLS`] and
+/// [`MAX_BYTES_IN_FLIGHT`]; shared by the service's clones.
+#[derive(Debug, Clone, Default)]
+pub struct SubmitBudget {
+    calls: Arc<AtomicUsize>,
+    bytes: Arc<AtomicU64>,
+}
+
+impl SubmitBudget {
+    /// Calls in progress now.
+    pub fn calls(&self) -> usize {
+        self.calls.load(Ordering::SeqCst)
+    }
+
+    /// Bytes the calls in progress have sent.
+    pub fn bytes(&self) -> u64 {
+        self.bytes.load(Ordering::SeqCst)
+    }
+
+    /// A call's share, if one more call fits.
+    fn enter(&self) -> Result<CallBudget, RpcError> {
+        let before = self.calls.fetch_add(1, Ordering::SeqCst);
+        let call = CallBudget {
+            budget: self.clone(),
+            bytes: 0,
+        };
+        if before >= MAX_CONCURRENT_CALLS {
+            return Err(RpcError::ResourceExhausted(format!(
+                "{MAX_CONCURRENT_CALLS} SubmitSessions calls are in progress \
+                 (MAX_CONCURRENT_CALLS): try again when one has ended"
+            )));
+        }
+        Ok(call)
+    }
+}
+
+/// One call's share of a [`SubmitBudget`], given back when the call ends.
+#[derive(Debug)]
+struct CallBudget {
+    budget: SubmitBudget,
+    bytes: u64,
+}
+
+impl CallBudget {
+    /// Counts `n` more bytes sent by the call, if they fit both limits.
+    fn take(&mut self, n: u64) -> Result<(), RpcError> {
+        if self.bytes + n > MAX_CALL_BYTES {
+            return Err(RpcError::ResourceExhausted(format!(
+                "the call's sessions pass {MAX_CALL_BYTES} bytes (MAX_CALL_BYTES): send them in \
+                 smaller calls"
+            )));
+        }
+        let all = self.budget.bytes.fetch_add(n, Ordering::SeqCst) + n;
+        self.bytes += n;
+        if all > MAX_BYTES_IN_FLIGHT {
+            return Err(RpcError::ResourceExhausted(format!(
+                "the calls in progress pass {MAX_BYTES_IN_FLIGHT} bytes together \
+                 (MAX_BYTES_IN_FLIGHT): try again when others have ended"
+            )));
+        }
+        Ok(())
+    }
+}
+
+impl Drop for CallBudget {
+    fn drop(&mut self) {
+        self.budget.bytes.fetch_sub(self.bytes, Ordering::SeqCst);
+        self.budget.calls.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// A call's error, saying that nothing of the call was stored.
+fn nothing_stored(status: impl Into<Status>) -> Status {
+    let status = status.into();
+    Status::new(
+        status.code(),
+        format!(
+            "{}; nothing of this call was stored: send it again (sessions stored already are \
+             counted as duplicates, not stored twice)",
+            status.message()
+        ),
+    )
+}
+
+/// The error of a stream that broke: a message over [`MAX_REQUEST_BYTES`] is
+/// RESOURCE_EXHAUSTED ([`jsae_proto::wire::receive_error`]), with this service's limit.
+fn broken_stream(status: Status) -> Status {
+    let status = jsae_proto::wire::receive_error(status);
+    if status.code() != Code::ResourceExhausted {
+        return status;
+    }
+    Status::resource_exhausted(format!(
+        "a message over {MAX_REQUEST_BYTES} bytes (MAX_REQUEST_BYTES): one session per message, \
+         within the limits of a session"
+    ))
+}
+
+fn internal(e: impl std::fmt::Display) -> RpcError {
+    RpcError::Internal(format!("session store: {e}"))
+}
+
+/// A call's checked sessions on their way to its staging file.
+struct Stager {
+    /// The staging file (taken out while a batch is written to it).
+    staged: Option<StagedSessions>,
+    batch: Vec<Session>,
+    batch_bytes: u64,
+    duplicates: u64,
+}
+
+impl Stager {
+    /// Adds a checked session (`bytes` encoded), writing the batch out when it is full.
+    async fn push(&mut self, session: Session, bytes: u64) -> Result<(), RpcError> {
+        self.batch.push(session);
+        self.batch_bytes += bytes;
+        if self.batch_bytes >= STAGE_BATCH_BYTES {
+            self.write_batch().await?;
+        }
+        Ok(())
+    }
+
+    /// Writes the batch to the staging file off the async threads. Should the call be
+    /// cancelled meanwhile, the staging file is deleted when the write returns.
+    async fn write_batch(&mut self) -> Result<(), RpcError> {
+        let batch = std::mem::take(&mut self.batch);
+        self.batch_bytes = 0;
+        if batch.is_empty() {
+            return Ok(());
+        }
+        let mut staged = self
+            .staged
+            .take()
+            .ok_or_else(|| internal("the staging file was lost to an earlier error"))?;
+        let (staged, duplicates) = tokio::task::spawn_blocking(move || {
+            let mut duplicates = 0;
+            for s in &batch {
+                if staged.push(s)? == Staged::Duplicate {
+                    duplicates += 1;
+                }
+            }
+            Ok::<_, jsae_envs::RecsysError>((staged, duplicates))
+        })
+        .await
+        .map_err(internal)?
+        .map_err(internal)?;
+        self.staged = Some(staged);
+        self.duplicates += duplicates;
+        Ok(())
+    }
+}
+
+/// Receives one call: checks each session, stages the good ones and commits them when the
+/// stream ends cleanly; any error before the commit stores nothing.
+pub(crate) async fn receive_sessions(
+    inner: &Arc<Recommender>,
+    budget: &SubmitBudget,
+    mut stream: Streaming<pb::Session>,
+) -> Result<pb::SubmitSummary, Status> {
+    let mut call = budget.enter().map_err(nothing_stored)?;
+    let mut stager = inner.stage()?.map(|staged| Stager {
+        staged: Some(staged),
+        batch: Vec::new(),
+        batch_bytes: 0,
+        duplicates: 0,
+    });
+    let mut summary = pb::SubmitSummary::default();
+    let mut index: u64 = 0;
+    while let Some(message) = stream
+        .message()
+        .await
+        .map_err(|s| nothing_stored(broken_stream(s)))?
+    {
+        let bytes = message.encoded_len() as u64;
+        call.take(bytes).map_err(nothing_stored)?;
+        if index >= MAX_SESSIONS_PER_CALL {
+            return Err(nothing_stored(RpcError::ResourceExhausted(format!(
+                "more than {MAX_SESSIONS_PER_CALL} sessions in one call \
+                 (MAX_SESSIONS_PER_CALL): send them in smaller calls"
+            ))));
+        }
+        let session = Session::from(message);
+        match check_session(&session) {
+            Ok(()) => match &mut stager {
+                Some(stager) => stager.push(session, bytes).await.map_err(nothing_stored)?,
+                // no store: counted, not kept
+                None => {
+                    summary.sessions_accepted += 1;
+                    summary.purchases_accepted += session.purchases.len() as u64;
+                }
+            },
+            Err(reason) => {
+                summary.sessions_rejected += 1;
+                if summary.errors.len() < MAX_ERRORS_LISTED {
+                    let id: String = session.session_id.chars().take(64).collect();
+                    summary.errors.push(format!(
+                        "session {index} (session_id {id:?}): INVALID_ARGUMENT: {reason}"
+                    ));
+                }
+            }
+        }
+        index += 1;
+    }
+    if index == 0 {
+        return Err(RpcError::InvalidArgument("no sessions: the stream was empty".into()).into());
+    }
+    if let Some(mut stager) = stager {
+        stager.write_batch().await.map_err(nothing_stored)?;
+        let inner = inner.clone();
+        let staged = stager
+            .staged
+            .take()
+            .ok_or_else(|| nothing_stored(internal("the staging file was lost")))?;
+        let outcome = tokio::task::spawn_blocking(move || inner.commit(staged))
+            .await
+            .map_err(|e| nothing_stored(internal(e)))?
+            .map_err(nothing_stored)?;
+        summary.sessions_accepted = outcome.stored;
+        summary.purchases_accepted = outcome.purchases;
+        summary.sessions_duplicate = stager.duplicates + outcome.duplicates;
+    }
+    if summary.sessions_rejected > summary.errors.len() as u64 {
+        let more = summary.sessions_rejected - summary.errors.len() as u64;
+        summary
+            .errors
+            .push(format!("... and {more} more rejected sessions"));
+    }
+    Ok(summary)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MIB: u64 = 1024 * 1024;
+
+    #[test]
+    fn calls_stay_within_their_bytes_the_bytes_in_flight_and_the_calls_at_once() {
+        let budget = SubmitBudget::default();
+        let mut a = budget.enter().expect("a first call");
+        a.take(MAX_CALL_BYTES - 1).expect("within MAX_CALL_BYTES");
+        let over = a.take(2).expect_err("over MAX_CALL_BYTES");
+        assert!(over.to_string().contains("MAX_CALL_BYTES"), "{over}");
+        let mut b = budget.enter().expect("a second call");
+        b.take(MAX_BYTES_IN_FLIGHT - MAX_CALL_BYTES)
+            .expect("within");
+        let mut c = budget.enter().expect("a third call");
+        let over = c.take(2 * MIB).expect_err("over MAX_BYTES_IN_FLIGHT");
+        assert!(over.to_string().contains("MAX_BYTES_IN_FLIGHT"), "{over}");
+        drop(c);
+        drop(a);
+        assert_eq!(budget.bytes(), MAX_BYTES_IN_FLIGHT - MAX_CALL_BYTES);
+        let mut d = budget.enter().expect("room again");
+        d.take(2 * MIB).expect("within");
+
+        let mut open: Vec<CallBudget> = (budget.calls()..MAX_CONCURRENT_CALLS)
+            .map(|_| budget.enter().expect("room"))
+            .collect();
+        let refused = budget.enter().expect_err("one call too many");
+        assert!(refused.to_string().contains("MAX_CONCURRENT_CALLS"));
+        assert_eq!(budget.calls(), MAX_CONCURRENT_CALLS);
+        open.pop();
+        budget.enter().expect("a call ended: room for one");
+        drop((open, b, d));
+        assert_eq!((budget.calls(), budget.bytes()), (0, 0));
+    }
+}
