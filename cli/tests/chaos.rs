@@ -5,7 +5,9 @@
 //! nothing acknowledged may be lost or repeated: metrics.csv's updates strictly increase and
 //! its env steps never go back, the policy and embedding versions go on from their
 //! checkpoints (the final policy version is at least the last update), and every restarted
-//! process came back from its checkpoint.
+//! process came back from its checkpoint: a learner frozen, its checkpoint read, then killed,
+//! says on restart that it took up that checkpoint's version and training state (Adam's
+//! moments, the reward scaler, the step accounts: their size and CRC-32).
 
 mod common;
 
@@ -49,6 +51,36 @@ impl Process {
         self.starts += 1;
     }
 
+    /// Freezes the process (SIGSTOP), so that its files stay as they are until it is killed.
+    fn freeze(&self) {
+        let pid = rustix::process::Pid::from_child(&self.child);
+        let _ = rustix::process::kill_process(pid, rustix::process::Signal::STOP);
+    }
+
+    /// The log from byte `from` on.
+    fn log_since(&self, from: usize) -> String {
+        let text = std::fs::read_to_string(&self.log).unwrap_or_default();
+        text.get(from..).unwrap_or_default().to_string()
+    }
+
+    fn log_len(&self) -> usize {
+        std::fs::metadata(&self.log).map_or(0, |m| m.len() as usize)
+    }
+}
+
+/// The version and training state of the policy checkpoint, as a restarted learner logs them.
+fn saved_state(checkpoints: &Path) -> Option<String> {
+    let bytes = std::fs::read(checkpoints.join("policy-latest.ckpt")).ok()?;
+    let saved = jsae_proto::run_dir::LatestCheckpoint::decode(&bytes).ok()?;
+    Some(format!(
+        "version {}, training state {} bytes (crc32 {:08x})",
+        saved.version,
+        saved.state.len(),
+        saved.state_checksum()
+    ))
+}
+
+impl Process {
     fn exited(&mut self) -> Option<std::process::ExitStatus> {
         self.child.try_wait().expect("try_wait")
     }
@@ -197,13 +229,32 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
     for i in (1..plan.len()).rev() {
         plan.swap(i, rng.random_range(0..=i));
     }
+    let mut compared = 0;
     for kill_learner in plan {
         std::thread::sleep(Duration::from_millis(rng.random_range(300..1500)));
         if learner.exited().is_some() {
             break; // the run ended before the plan did
         }
         if kill_learner {
+            // the state it saved last, read while it cannot write a newer one; the restarted
+            // learner must take up exactly that state
+            learner.freeze();
+            let saved = saved_state(&checkpoints);
+            let from = learner.log_len();
             learner.kill_and_restart();
+            if let Some(saved) = saved {
+                let wait = Instant::now() + Duration::from_secs(30);
+                while !learner.log_since(from).contains("resuming from") {
+                    assert!(Instant::now() < wait, "the learner did not resume");
+                    std::thread::sleep(Duration::from_millis(20));
+                }
+                let log = learner.log_since(from);
+                assert!(
+                    log.contains(&saved),
+                    "saved {saved}; the restart said:\n{log}"
+                );
+                compared += 1;
+            }
         } else {
             embedder.kill_and_restart();
         }
@@ -223,10 +274,15 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
     assert!(learner_exit.is_some_and(|s| s.success()), "{}", logs());
     assert!(actor_exit.is_some_and(|s| s.success()));
     println!(
-        "started: learner {} times, embedder {} times; {} metrics rows",
+        "started: learner {} times, embedder {} times; {} metrics rows; {compared} restarts \
+         took up exactly the saved state",
         learner.starts,
         embedder.starts,
         rows(&run).len()
+    );
+    assert!(
+        compared >= 1,
+        "no learner restart was compared with its saved state"
     );
     assert!(learner.starts + embedder.starts > 2, "nothing was killed");
 

@@ -90,6 +90,12 @@ fn header(bytes: &[u8]) -> Result<u64, CheckpointFileError> {
 }
 
 impl LatestCheckpoint {
+    /// The CRC-32 of the training state alone: what a resumed process logs, so that a test
+    /// (or an operator) can tell it took up exactly the state a killed one saved.
+    pub fn state_checksum(&self) -> u32 {
+        crc32fast::hash(&self.state)
+    }
+
     /// The file's bytes.
     pub fn encode(&self) -> Vec<u8> {
         let mut out = Vec::with_capacity(HEADER + self.weights.len() + self.state.len() + TRAILER);

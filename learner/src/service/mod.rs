@@ -101,7 +101,13 @@ pub async fn serve(
     let resumed = match out.checkpoints().read_latest_checkpoint(Weights::Policy) {
         Some(s) => {
             let wall = learner.resume(&s)?;
-            tracing::info!("resuming from the policy checkpoint, version {}", s.version);
+            tracing::info!(
+                "resuming from the policy checkpoint, version {}, training state {} bytes \
+                 (crc32 {:08x})",
+                s.version,
+                s.state.len(),
+                s.state_checksum()
+            );
             if let Some(wall) = wall {
                 started = crate::metrics::run_started(wall);
                 tracing::info!(
