@@ -76,7 +76,7 @@ async fn with_a_token_every_rpc_but_health_needs_it() {
                 .map(|_| ())
                 .map_err(|s| s.code()),
             embedder_rpc
-                .watch_embedding(pb::WatchRequest { actor_id: 0 })
+                .watch_embedding(pb::WatchRequest::default())
                 .await
                 .map(|_| ())
                 .map_err(|s| s.code()),
@@ -86,7 +86,7 @@ async fn with_a_token_every_rpc_but_health_needs_it() {
                 .map(|_| ())
                 .map_err(|s| s.code()),
             learner_rpc
-                .watch_policy(pb::WatchRequest { actor_id: 0 })
+                .watch_policy(pb::WatchRequest::default())
                 .await
                 .map(|_| ())
                 .map_err(|s| s.code()),

@@ -285,7 +285,7 @@ async fn malformed_messages_get_invalid_argument_and_accepted_ones_are_kept() {
         .map(|r| r.into_inner().accepted);
     assert_refused(r, Code::InvalidArgument, "transition batch 2: rewards");
     let mut watch = client
-        .watch_embedding(pb::WatchRequest { actor_id: 0 })
+        .watch_embedding(pb::WatchRequest::default())
         .await
         .expect("watch")
         .into_inner();

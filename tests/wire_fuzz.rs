@@ -55,7 +55,11 @@ fn rpcs() -> Vec<Rpc> {
             time_unix_ms: 1,
         }],
     };
-    let watch = pb::WatchRequest { actor_id: 3 }.encode_to_vec();
+    let watch = pb::WatchRequest {
+        actor_id: 3,
+        evaluates: true,
+    }
+    .encode_to_vec();
     let rpc = |service, path, shape, valid| Rpc {
         service,
         path,

@@ -212,6 +212,41 @@ async fn only_the_asked_actor_sees_the_evaluation_request_and_only_its_report_co
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn an_asked_actor_that_dies_before_it_reports_is_replaced_and_the_run_ends() {
+    let mut c = config(EnvName::Gridworld, Algo::Ppo, "trust-eval-replaced");
+    c.env_steps = c.round_steps() as u64;
+    let learner = start_learner(&c, None).await;
+    let n = half_batch(&c);
+    // actor 9 (this test) is alive and its fragment reaches the run's env steps
+    let mut asked = watch_policy(&learner.url, 9).await;
+    let fragments = vec![
+        claimed_fragment(&c, 9, 7, n as u64, n, 0),
+        claimed_fragment(&c, 9, 7, 2 * n as u64, n, 0),
+    ];
+    assert_eq!(
+        push_fragments(&learner.url, fragments)
+            .await
+            .expect("accepted"),
+        2
+    );
+    let request = until_snapshot(&mut asked, u64::MAX)
+        .await
+        .expect_err("an evaluation request");
+    assert_eq!(request.actor_id, 9);
+    // a real actor joins; actor 9 dies without a report: its stream closes
+    let actor = start_actor(&c, 0, None, &learner.url);
+    drop(asked);
+    let summary = tokio::time::timeout(std::time::Duration::from_secs(120), learner.join())
+        .await
+        .expect("the run ends in time")
+        .expect("learner")
+        .expect("the run ended");
+    assert_eq!(summary.env_steps, 2 * n as u64);
+    assert_eq!(summary.eval_episodes, c.eval_episodes);
+    actor.join().await.expect("the actor finished");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn two_incarnations_of_one_actor_id_are_both_counted() {
     let mut c = config(EnvName::Gridworld, Algo::Ppo, "trust-incarnations");
     c.env_steps = 4 * c.round_steps() as u64;

@@ -4,12 +4,14 @@
 //! step across them, swaps weights between rollouts and plays at random before the first
 //! embedding; `service` is the actor process: the worker fed by the embedder's and the
 //! learner's snapshot streams over gRPC, streaming transitions and fragments back, paced
-//! by `pacing` (rollouts per policy version, and a wait that adapts to the update time). The
+//! by `pacing` (rollouts per policy version, and a wait that adapts to the update time), its
+//! random play before the first embedding bounded by `random_play`. The
 //! environments are `jsae-envs`, the run configuration `jsae_proto::settings`.
 
 #![forbid(unsafe_code)]
 
 pub mod pacing;
+pub mod random_play;
 pub mod service;
 pub mod worker;
 

@@ -14,7 +14,7 @@
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use jsae_proto::client::{self, PolicyEvent};
@@ -29,6 +29,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
 
 use crate::pacing::{Pace, Pacing};
+use crate::random_play::RandomPlay;
 use crate::worker::ActorWorker;
 use jsae_record::{Recorder, RecordingInfo};
 
@@ -91,18 +92,23 @@ where
     let mut held: Option<M> = None;
     loop {
         let (tx, rx) = mpsc::channel::<M>(1);
-        let call = tokio::spawn(open(ReceiverStream::new(rx)));
+        let mut call = tokio::spawn(open(ReceiverStream::new(rx)));
         let mut sent_any = false;
         let ended = loop {
             let msg = match held.take() {
                 Some(m) => m,
-                None => match queue.recv().await {
-                    Some(m) => m,
-                    None => {
-                        drop(tx);
-                        let _ = call.await;
-                        return;
-                    }
+                // a call that ends while the queue is empty (the service went away) is noticed
+                // now, not with the next message, which would go into a dead stream
+                None => tokio::select! {
+                    next = queue.recv() => match next {
+                        Some(m) => m,
+                        None => {
+                            drop(tx);
+                            let _ = call.await;
+                            return;
+                        }
+                    },
+                    ended = &mut call => break ended,
                 },
             };
             if let Err(back) = tx.send(msg).await {
@@ -145,6 +151,8 @@ struct Links {
     transitions: mpsc::Sender<pb::TransitionBatch>,
     fragments: mpsc::Sender<pb::RolloutFragment>,
     reports: mpsc::Sender<pb::EvalReport>,
+    /// How many times the embedder's stream was lost after it had opened.
+    embedder_lost: Arc<AtomicU64>,
 }
 
 /// Steps until the run ends or `stop`, recording every transition when asked; the recording
@@ -199,7 +207,7 @@ fn step_until_done(
         Duration::from_millis(config.policy_wait_ms),
     );
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
-    let random_share = config.random_play_share();
+    let mut random_play = RandomPlay::new(config.random_play_share());
     loop {
         report.env_steps = worker.env_steps();
         if stop.load(Ordering::Relaxed) {
@@ -257,10 +265,23 @@ fn step_until_done(
                 }
             }
         }
-        // Random play only until this actor's share of the pre-training transitions is in;
-        // then wait for the first embedding rather than spend the budget on more.
-        let waiting_for_embedding =
-            needs_embedder && worker.embedding_version() == 0 && worker.env_steps() >= random_share;
+        // Random play only until this actor's share of the pre-training transitions is in
+        // (another share when the embedder went away before its first embedding); then wait
+        // for the first embedding rather than spend the budget on more.
+        let first_embedding = needs_embedder && worker.embedding_version() == 0;
+        if first_embedding
+            && let Some(until) = random_play.embedder_lost(
+                worker.env_steps(),
+                links.embedder_lost.load(Ordering::Relaxed),
+            )
+        {
+            tracing::warn!(
+                "actor {}: the embedder went away before its first embedding; random play for \
+                 its pre-training again, until {until} env steps",
+                options.id
+            );
+        }
+        let waiting_for_embedding = first_embedding && random_play.waits(worker.env_steps());
         let Some(version) = worker.policy_version() else {
             std::thread::sleep(Duration::from_millis(5));
             continue;
@@ -330,6 +351,7 @@ pub async fn run(
     let (transitions_tx, transitions_rx) = mpsc::channel::<pb::TransitionBatch>(1);
     let (fragments_tx, fragments_rx) = mpsc::channel::<pb::RolloutFragment>(16);
     let (reports_tx, mut reports_rx) = mpsc::channel::<pb::EvalReport>(2);
+    let embedder_lost = Arc::new(AtomicU64::new(0));
     let mut tasks = tokio::task::JoinSet::new();
     let security = options.security.clone();
     let learner_channel = security.channel(&options.learner)?;
@@ -341,8 +363,9 @@ pub async fn run(
             .ok_or_else(|| anyhow::anyhow!("--embedder is required for --algo jsae"))?;
         let channel = security.channel(&url)?;
         let watching = security.clone();
+        let lost = embedder_lost.clone();
         tasks.spawn(async move {
-            client::watch_embedding(&watching, &url, |s| {
+            client::watch_embedding_counting_losses(&watching, &url, &lost, |s| {
                 embedding_tx.send_replace(Some(Arc::new(s)));
                 async { true }
             })
@@ -363,7 +386,7 @@ pub async fn run(
         let id = options.id;
         let watching = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&watching, &url, id, |event| {
+            client::watch_policy(&watching, &url, Some(id), |event| {
                 let go_on = match event {
                     PolicyEvent::Snapshot(s) => {
                         policy_tx.send_replace(Some(Arc::new(s)));
@@ -431,6 +454,7 @@ pub async fn run(
                 transitions: transitions_tx,
                 fragments: fragments_tx,
                 reports: reports_tx,
+                embedder_lost,
             };
             stepping_loop(&config, &options, &links, &stop_flag)
         })

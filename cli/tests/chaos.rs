@@ -1,6 +1,7 @@
 //! Chaos: one run of separate service processes (embedder, learner, one actor) in which the
-//! learner and the embedder are killed with SIGKILL at random moments, several times each, and
-//! restarted with the same command line on the same ports. The run must still finish by
+//! embedder is killed with SIGKILL while it pre-trains (before any checkpoint: the actor must
+//! play again for the restarted one), then the learner and the embedder at random moments,
+//! several times each, each restarted with the same command line on the same ports. The run must still finish by
 //! itself (the actor and the learner exit 0, summary.json written for the whole budget), and
 //! nothing acknowledged may be lost or repeated: metrics.csv's updates strictly increase and
 //! its env steps never go back, the policy and embedding versions go on from their
@@ -22,7 +23,7 @@ use rand_chacha::ChaCha8Rng;
 /// Kills of each of the learner and the embedder.
 const KILLS: usize = 3;
 const SEED: u64 = 7;
-const ENV_STEPS: u64 = 60_000;
+const ENV_STEPS: u64 = 150_000;
 
 /// A service process and the command line it is restarted with.
 struct Process {
@@ -142,7 +143,7 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
     std::fs::write(
         dir.join("small.toml"),
         "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\npolicy_wait_ms = 500\n\
-         [embedding]\npretrain_transitions = 1000\npretrain_per_action = 0\npretrain_epochs = 5\n\
+         [embedding]\npretrain_transitions = 1000\npretrain_per_action = 0\npretrain_epochs = 40\n\
          update_every = 2048\nupdate_steps = 5\n[ppo]\nepochs = 1\n",
     )
     .expect("settings");
@@ -210,9 +211,6 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
         ),
     );
 
-    // kills at random moments once the run is under way (the first embedding published: a
-    // restarted embedder resumes from its checkpoint)
-    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     let deadline = Instant::now() + Duration::from_secs(300);
     let embedding_saved = || {
         std::fs::read_dir(&checkpoints).is_ok_and(|entries| {
@@ -221,6 +219,19 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
                 .any(|e| e.file_name().to_string_lossy().starts_with("embedding-"))
         })
     };
+    // the embedder killed while it pre-trains (the actor's random play in its buffer, no
+    // embedding yet): the restarted one starts empty, and the actor plays for it again
+    while !embedder.log_since(0).contains("pre-training the embedding") {
+        assert!(Instant::now() < deadline, "no pre-training in time");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    embedder.freeze();
+    assert!(!embedding_saved(), "pre-training ended before the kill");
+    embedder.kill_and_restart();
+
+    // kills at random moments once the run is under way (the first embedding published: a
+    // restarted embedder resumes from its checkpoint)
+    let mut rng = ChaCha8Rng::seed_from_u64(SEED);
     while !embedding_saved() {
         assert!(Instant::now() < deadline, "no embedding in time");
         std::thread::sleep(Duration::from_millis(100));
@@ -317,6 +328,11 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
     if learner.starts > 1 {
         assert!(logs().contains("resuming"), "{}", logs());
     }
+    let actor_log = std::fs::read_to_string(&actor.log).unwrap_or_default();
+    assert!(
+        actor_log.contains("random play for its pre-training again"),
+        "the actor did not play again for the restarted embedder:\n{actor_log}"
+    );
     embedder.child.kill().ok();
     let _ = std::fs::remove_dir_all(&dir);
 }

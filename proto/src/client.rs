@@ -3,6 +3,7 @@
 //! for as long as the sink wants more.
 
 use std::future::Future;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::net::Backoff;
 use crate::security::Security;
@@ -22,8 +23,22 @@ pub enum PolicyEvent {
 
 /// Follows the embedder at `url`: every complete snapshot goes to `sink`; returns when `sink`
 /// answers `false` (or `url` is not a valid URL).
-pub async fn watch_embedding<F, Fut>(security: &Security, url: &str, mut sink: F)
+pub async fn watch_embedding<F, Fut>(security: &Security, url: &str, sink: F)
 where
+    F: FnMut(EmbeddingSnapshot) -> Fut,
+    Fut: Future<Output = bool>,
+{
+    watch_embedding_counting_losses(security, url, &AtomicU64::new(0), sink).await;
+}
+
+/// [`watch_embedding`], adding one to `lost` each time a stream that had opened ends: the
+/// embedder went away (a restart, or the connection broke).
+pub async fn watch_embedding_counting_losses<F, Fut>(
+    security: &Security,
+    url: &str,
+    lost: &AtomicU64,
+    mut sink: F,
+) where
     F: FnMut(EmbeddingSnapshot) -> Fut,
     Fut: Future<Output = bool>,
 {
@@ -38,10 +53,7 @@ where
     loop {
         let mut client = pb::embedder_client::EmbedderClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
-        match client
-            .watch_embedding(pb::WatchRequest { actor_id: 0 })
-            .await
-        {
+        match client.watch_embedding(pb::WatchRequest::default()).await {
             Ok(response) => {
                 backoff.reset();
                 let mut stream = response.into_inner();
@@ -60,6 +72,7 @@ where
                         }
                     }
                 }
+                lost.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("embedding stream from {url} ended; reconnecting");
             }
             Err(status) => tracing::warn!("embedder {url}: {}", crate::net::status_reason(&status)),
@@ -69,8 +82,10 @@ where
 }
 
 /// Follows the learner at `url`: snapshots, evaluation requests and the end of the run go to
-/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL).
-pub async fn watch_policy<F, Fut>(security: &Security, url: &str, actor_id: u64, mut sink: F)
+/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL). `actor` is the
+/// id of an actor, which the learner may ask for evaluation episodes while its stream is open;
+/// None for a follower that only reads the snapshots.
+pub async fn watch_policy<F, Fut>(security: &Security, url: &str, actor: Option<u64>, mut sink: F)
 where
     F: FnMut(PolicyEvent) -> Fut,
     Fut: Future<Output = bool>,
@@ -87,7 +102,13 @@ where
     loop {
         let mut client = pb::learner_client::LearnerClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
-        match client.watch_policy(pb::WatchRequest { actor_id }).await {
+        match client
+            .watch_policy(pb::WatchRequest {
+                actor_id: actor.unwrap_or(0),
+                evaluates: actor.is_some(),
+            })
+            .await
+        {
             Ok(response) => {
                 backoff.reset();
                 let mut stream = response.into_inner();

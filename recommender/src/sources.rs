@@ -107,7 +107,7 @@ pub fn follow(
         let rec = rec.clone();
         let security = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&security, &url, 0, |event| {
+            client::watch_policy(&security, &url, None, |event| {
                 if let PolicyEvent::Snapshot(s) = &event {
                     match rec.set_policy(s) {
                         Ok(()) => tracing::debug!("recommender: policy v{}", s.version),

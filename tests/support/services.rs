@@ -283,7 +283,7 @@ pub async fn first_embedding_version(url: &str) -> u64 {
         .await
         .expect("connect");
     let mut watch = client
-        .watch_embedding(pb::WatchRequest { actor_id: 0 })
+        .watch_embedding(pb::WatchRequest::default())
         .await
         .expect("watch")
         .into_inner();
@@ -325,7 +325,10 @@ pub async fn watch_policy(url: &str, actor_id: u64) -> tonic::Streaming<pb::Poli
         .expect("connect")
         .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
     client
-        .watch_policy(pb::WatchRequest { actor_id })
+        .watch_policy(pb::WatchRequest {
+            actor_id,
+            evaluates: true,
+        })
         .await
         .expect("watch")
         .into_inner()

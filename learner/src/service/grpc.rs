@@ -2,8 +2,8 @@
 //! finite values, rewards within `ppo.max_abs_reward`, a policy version this learner has
 //! published, an embedding version its embedder has published) and queues it for the
 //! training thread; `WatchPolicy` streams snapshots, the evaluation request (to the asked
-//! actor's stream only) and the end of the run; `ReportEval` takes the asked actor's
-//! evaluation.
+//! actor's stream only) and the end of the run, and tells the training thread which actors'
+//! streams are open; `ReportEval` takes the asked actor's evaluation.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -16,6 +16,8 @@ use jsae_proto::{
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
+
+use super::evaluation::OpenStream;
 
 /// Largest fragment accepted, in steps.
 pub const MAX_FRAGMENT_STEPS: usize = 65_536;
@@ -34,6 +36,8 @@ pub(super) enum Input {
     Embedding(EmbeddingSnapshot),
     /// An evaluation report and the request it answers.
     Eval(EvalReport, u64),
+    /// An actor's policy stream opened or closed.
+    Stream { actor: u64, opened: bool },
 }
 
 /// What the policy stream carries: the current snapshot, an evaluation request, the end.
@@ -162,7 +166,15 @@ impl pb::learner_server::Learner for LearnerService {
         request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
-        let watcher = request.into_inner().actor_id;
+        let watch = request.into_inner();
+        // an actor's stream is counted while it is open, so that an actor that dies while
+        // asked for the evaluation is replaced
+        let actor = if watch.evaluates {
+            let open = OpenStream::announce(watch.actor_id, &self.queue).await;
+            Some(open.ok_or_else(|| RpcError::shutting_down("learner"))?)
+        } else {
+            None
+        };
         let (mut sent_version, mut sent_eval) = (None, None);
         let stream = net::watch_stream(self.state.clone(), &self.stopping, move |now| {
             let mut events = Vec::new();
@@ -173,7 +185,7 @@ impl pb::learner_server::Learner for LearnerService {
                 events.extend(wire::policy_chunks(s).into_iter().map(Event::Chunk));
             }
             if let Some(e) = &now.evaluate
-                && e.actor_id == watcher
+                && actor.as_ref().is_some_and(|a| a.actor() == e.actor_id)
                 && sent_eval != Some(e.request_id)
             {
                 sent_eval = Some(e.request_id);

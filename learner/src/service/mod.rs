@@ -18,6 +18,7 @@
 //! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
 //! actors wait for.
 
+mod evaluation;
 mod grpc;
 mod training;
 

@@ -1,8 +1,9 @@
 //! The learner's training thread: it owns the [`Learner`] and the run directory (metrics.csv
 //! per update, the latest policy checkpoint with the training state before each snapshot is
-//! published, summary.json at the end) and ends the run: at `env_steps` it asks the actor
-//! whose fragment reached them for deterministic evaluation episodes (a request with a random
-//! id), writes the summary on its report and tells the actors to finish.
+//! published, summary.json at the end) and ends the run: at `env_steps` it asks an actor for
+//! deterministic evaluation episodes (the one whose fragment reached them, or another if that
+//! one's stream closes: [`Evaluation`]), writes the summary on its report and tells the actors
+//! to finish.
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -10,11 +11,11 @@ use std::time::Instant;
 
 use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
 use jsae_proto::settings::TrainConfig;
-use jsae_proto::wire::pb;
 use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
 use jsae_telemetry::{LearnerMetrics, LearnerSample};
 use tokio::sync::{mpsc, watch};
 
+use super::evaluation::Evaluation;
 use super::grpc::{Input, PolicyState};
 use crate::{Ingested, Learner, LoggedPurchases, MetricsSink, Summary, update_scalars};
 
@@ -72,12 +73,17 @@ impl LearnerLoop {
         }
         let first = self.learner.snapshot()?;
         self.publish_snapshot(first)?;
-        // the open evaluation request, once the run's env steps are reached
-        let mut asked: Option<pb::EvalRequest> = None;
+        let mut evaluation =
+            Evaluation::new(self.config.eval_episodes as u32, self.config.eval_seed());
         while let Some(input) = queue.blocking_recv() {
             match input {
                 Input::Embedding(s) => self.embedding = Some(s),
-                Input::Fragment(f) if asked.is_none() => {
+                Input::Stream { actor, opened } => {
+                    if let Some(request) = evaluation.stream(actor, opened) {
+                        self.publish.send_modify(|s| s.evaluate = Some(request));
+                    }
+                }
+                Input::Fragment(f) if evaluation.open().is_none() => {
                     let actor_id = f.actor_id;
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
@@ -110,24 +116,20 @@ impl LearnerLoop {
                         queue_depth: queue.len(),
                     });
                     if self.learner.env_steps() >= self.config.env_steps {
-                        let request = pb::EvalRequest {
-                            request_id: jsae_proto::random_id(),
-                            episodes: self.config.eval_episodes as u32,
-                            seed: self.config.eval_seed(),
-                            actor_id,
-                        };
+                        let request = evaluation.ask(actor_id);
                         tracing::info!(
-                            "{} env steps reached: asking actor {actor_id} for {} evaluation \
-                             episodes",
+                            "{} env steps reached: asking actor {} for {} evaluation episodes",
                             self.learner.env_steps(),
+                            request.actor_id,
                             request.episodes
                         );
-                        asked = Some(request);
                         self.publish.send_modify(|s| s.evaluate = Some(request));
                     }
                 }
                 Input::Fragment(_) => {}
-                Input::Eval(report, id) if asked.is_some_and(|r| r.request_id == id) => {
+                Input::Eval(report, id)
+                    if evaluation.open().is_some_and(|r| r.request_id == id) =>
+                {
                     return self.finish(&report);
                 }
                 Input::Eval(..) => {}
