@@ -2,7 +2,8 @@
 # Builds the jsae image from this checkout: the binaries on the host (cargo; the image has no
 # toolchain), staged with libmujoco, the MuJoCo XMLs and the Instacart sample into
 # deploy/.stage, then `docker build -f deploy/Dockerfile`.
-#   PROFILE=release (default) or dev (what the test suite already built: quicker in CI)
+#   PROFILE=release (default) or dev: the binaries exactly as `cargo test --workspace` builds
+#                   them (the same features, so after the tests nothing compiles again: CI)
 #   BASE=image      the base image; default: jsae-base:bookworm, built here by
 #                   deploy/build-base-image.sh when it is missing (no registry needed)
 #   TAG=jsae:latest the image's tag
@@ -15,7 +16,10 @@ base="${BASE:-jsae-base:bookworm}"
 if [[ "$base" == jsae-base:* ]]; then
     BASE_TAG="$base" deploy/build-base-image.sh
 fi
-flag=()
+# dev: with the test targets, so that the dependencies' features are unified as for the
+# tests (a dev-dependency such as proptest turns on features of shared crates) and cargo
+# reuses what `cargo test` built instead of compiling the workspace a second time
+flag=(--workspace --tests)
 dir=debug
 if [[ "$profile" == release ]]; then
     flag=(--release)

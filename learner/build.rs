@@ -16,8 +16,12 @@ fn main() {
     println!("cargo::rustc-env=JSAE_GIT_COMMIT={commit}");
     if let Some(dir) = git(&["rev-parse", "--absolute-git-dir"]) {
         // a new commit or another branch: built again with its name
+        // (only paths that exist: cargo counts a missing one as changed, every build)
         for moved in ["HEAD", "refs/heads", "packed-refs"] {
-            println!("cargo::rerun-if-changed={dir}/{moved}");
+            let path = std::path::Path::new(&dir).join(moved);
+            if path.exists() {
+                println!("cargo::rerun-if-changed={}", path.display());
+            }
         }
     }
 }
