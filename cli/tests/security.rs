@@ -1,14 +1,15 @@
 //! The deployment's token and TLS from the outside, as users run them: `jsae train` as
 //! separate processes with mutual TLS and a token trains to the end; a Python grpcio client
-//! is refused without the token (and with a wrong one) on every RPC but health, over plain
-//! text and over TLS; bad security flags stop a service at start with exit 2.
+//! is refused without the token (and with a wrong one) on every RPC but health of the
+//! Recommender (over plain text and over TLS), the embedder and the learner; bad security
+//! flags stop a service at start with exit 2.
 
 mod common;
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use common::{Server, repo_root, start_recommender, venv_python};
+use common::{Server, free_port, repo_root, start_recommender, venv_python};
 use jsae_proto::security::test_certs::TestPki;
 
 /// A deployment's token (32 hex characters).
@@ -212,6 +213,84 @@ fn a_python_client_needs_the_token_on_every_rpc_but_health() {
         "{}",
         String::from_utf8_lossy(&health.stderr)
     );
+}
+
+/// `jsae SERVICE --listen 127.0.0.1:PORT` with `args`, its output in `dir/SERVICE.log`.
+fn start_service(dir: &Path, service: &str, port: u16, args: &[&str]) -> Server {
+    let log = std::fs::File::create(dir.join(format!("{service}.log"))).expect("log file");
+    let child = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .current_dir(dir)
+        .args([service, "--listen", &format!("127.0.0.1:{port}")])
+        .args(args)
+        .stdout(log.try_clone().expect("log file"))
+        .stderr(log)
+        .spawn()
+        .expect("the service starts");
+    Server(child)
+}
+
+#[test]
+fn a_python_client_needs_the_token_on_every_embedder_and_learner_rpc_but_health() {
+    let dir = fresh_dir("python-services");
+    let token = token_file(&dir);
+    let (embedder_port, learner_port) = (free_port(), free_port());
+    let run = [
+        "--env",
+        "gridworld-discrete",
+        "--algo",
+        "jsae",
+        "--seed",
+        "1",
+    ];
+    let secured = ["--auth-token-file", arg(&token)];
+    let _embedder = start_service(
+        &dir,
+        "embedder",
+        embedder_port,
+        &[&run[..], &secured].concat(),
+    );
+    let embedder_url = format!("http://127.0.0.1:{embedder_port}");
+    let learner_args = ["--embedder", &embedder_url, "--out", "run"];
+    let _learner = start_service(
+        &dir,
+        "learner",
+        learner_port,
+        &[&run[..], &secured, &learner_args].concat(),
+    );
+    let script = repo_root().join("scripts/python/services_auth_check.py");
+    let out = Command::new(venv_python())
+        .arg(script)
+        .args([
+            &format!("127.0.0.1:{embedder_port}"),
+            &format!("127.0.0.1:{learner_port}"),
+            arg(&token),
+        ])
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let seen: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
+    println!("{seen}");
+    let rpcs = [
+        "embedder/PushTransitions",
+        "embedder/WatchEmbedding",
+        "embedder/reflection",
+        "learner/PushFragments",
+        "learner/WatchPolicy",
+        "learner/ReportEval",
+        "learner/reflection",
+    ];
+    for rpc in rpcs {
+        for label in ["without_token", "wrong_token"] {
+            assert_eq!(seen[format!("{rpc} {label}")], "UNAUTHENTICATED", "{seen}");
+        }
+        assert!(seen[format!("{rpc} with_token")].is_string(), "{seen}");
+    }
+    assert_eq!(seen["embedder/health"], "SERVING");
+    assert_eq!(seen["learner/health"], "SERVING");
 }
 
 #[test]
