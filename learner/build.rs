@@ -14,14 +14,21 @@ fn git(args: &[&str]) -> Option<String> {
 fn main() {
     let commit = git(&["rev-parse", "HEAD"]).unwrap_or_else(|| "unknown".into());
     println!("cargo::rustc-env=JSAE_GIT_COMMIT={commit}");
-    if let Some(dir) = git(&["rev-parse", "--absolute-git-dir"]) {
-        // a new commit or another branch: built again with its name
-        // (only paths that exist: cargo counts a missing one as changed, every build)
-        for moved in ["HEAD", "refs/heads", "packed-refs"] {
-            let path = std::path::Path::new(&dir).join(moved);
-            if path.exists() {
-                println!("cargo::rerun-if-changed={}", path.display());
-            }
+    // a new commit or another branch: built again with its name (HEAD is the worktree's, the
+    // branches are the repository's; only paths that exist: cargo counts a missing one as
+    // changed, every build)
+    let worktree = git(&["rev-parse", "--absolute-git-dir"]);
+    let common = git(&["rev-parse", "--path-format=absolute", "--git-common-dir"]);
+    let watched = [
+        (&worktree, "HEAD"),
+        (&common, "refs/heads"),
+        (&common, "packed-refs"),
+    ];
+    for (dir, moved) in watched {
+        let Some(dir) = dir else { continue };
+        let path = std::path::Path::new(dir).join(moved);
+        if path.exists() {
+            println!("cargo::rerun-if-changed={}", path.display());
         }
     }
 }

@@ -5,12 +5,14 @@
 //! embedding; `service` is the actor process: the worker fed by the embedder's and the
 //! learner's snapshot streams over gRPC, streaming transitions and fragments back, paced
 //! by `pacing` (rollouts per policy version, and a wait that adapts to the update time), its
-//! random play before the first embedding bounded by `random_play`. The
+//! random play before the first embedding bounded by `random_play`, and its streams to the
+//! services kept open by `push`, which loses nothing while a service is away. The
 //! environments are `jsae-envs`, the run configuration `jsae_proto::settings`.
 
 #![forbid(unsafe_code)]
 
 pub mod pacing;
+mod push;
 pub mod random_play;
 pub mod service;
 pub mod worker;

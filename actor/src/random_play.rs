@@ -3,8 +3,9 @@
 //! the first embedding rather than spend the budget on more. An embedder that goes away before
 //! its first embedding (killed, then restarted with no checkpoint) starts again from an empty
 //! buffer, and the transitions it had are lost with it: the actor, told by its embedding
-//! stream that the embedder went away, plays another share for the new one, so a restart
-//! during pre-training cannot leave the run waiting forever.
+//! stream that the embedder went away and is back, plays another share for the new one (and
+//! `push` loses none of it while the embedder is away), so a restart during pre-training does
+//! not leave the run waiting forever.
 
 /// How far the actor plays at random; see the module's text.
 #[derive(Debug, Clone)]
@@ -26,8 +27,8 @@ impl RandomPlay {
         }
     }
 
-    /// The embedder's stream has been lost `losses` times in all; when that is more than
-    /// before, another share starts at `env_steps`: the env steps it goes on until.
+    /// The embedder's stream has come back after a loss `losses` times in all; when that is
+    /// more than before, another share starts at `env_steps`: the env steps it goes on until.
     pub fn embedder_lost(&mut self, env_steps: u64, losses: u64) -> Option<u64> {
         if losses <= self.losses {
             return None;

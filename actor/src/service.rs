@@ -25,10 +25,10 @@ use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 use jsae_telemetry::{ActorMetrics, ActorSample, MetricsFlag, MetricsRegistry};
 use tokio::sync::{mpsc, watch};
-use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
 
 use crate::pacing::{Pace, Pacing};
+use crate::push::push_forever;
 use crate::random_play::RandomPlay;
 use crate::worker::ActorWorker;
 use jsae_record::{Recorder, RecordingInfo};
@@ -80,69 +80,6 @@ enum Control {
     Finish,
 }
 
-/// A client stream that survives its server: messages from `queue` are sent on one
-/// long-lived call, re-opened with backoff whenever it ends.
-async fn push_forever<M, F, Fut>(name: &'static str, mut queue: mpsc::Receiver<M>, mut open: F)
-where
-    M: Send + 'static,
-    F: FnMut(ReceiverStream<M>) -> Fut,
-    Fut: Future<Output = Result<pb::PushSummary, tonic::Status>> + Send + 'static,
-{
-    let mut backoff = Backoff::default();
-    let mut held: Option<M> = None;
-    loop {
-        let (tx, rx) = mpsc::channel::<M>(1);
-        let mut call = tokio::spawn(open(ReceiverStream::new(rx)));
-        let mut sent_any = false;
-        let ended = loop {
-            let msg = match held.take() {
-                Some(m) => m,
-                // a call that ends while the queue is empty (the service went away) is noticed
-                // now, not with the next message, which would go into a dead stream
-                None => tokio::select! {
-                    next = queue.recv() => match next {
-                        Some(m) => m,
-                        None => {
-                            drop(tx);
-                            let _ = call.await;
-                            return;
-                        }
-                    },
-                    ended = &mut call => break ended,
-                },
-            };
-            if let Err(back) = tx.send(msg).await {
-                held = Some(back.0);
-                break call.await;
-            }
-            if !sent_any {
-                sent_any = true;
-                backoff.reset();
-            }
-        };
-        match ended {
-            Ok(Err(status)) if status.code() == Code::InvalidArgument => {
-                tracing::error!("{name}: a message was refused: {}", status.message());
-                held = None;
-            }
-            Ok(Err(status)) if status.code() == Code::ResourceExhausted => {
-                tracing::error!("{name}: a message was too large: {}", status.message());
-                held = None;
-            }
-            Ok(Err(status)) if status.code() == Code::Unavailable => {
-                // refused or lost: retried with backoff, but said, with the cause
-                tracing::warn!("{name}: {}", net::status_reason(&status));
-            }
-            Ok(Err(status)) => {
-                tracing::debug!("{name}: {} ({:?})", status.message(), status.code());
-            }
-            Ok(Ok(_)) => {}
-            Err(e) => tracing::warn!("{name}: {e}"),
-        }
-        tokio::time::sleep(backoff.next_delay()).await;
-    }
-}
-
 /// The stepping thread's ends of the channels to the async side.
 struct Links {
     embedding: watch::Receiver<Option<Arc<EmbeddingSnapshot>>>,
@@ -151,7 +88,7 @@ struct Links {
     transitions: mpsc::Sender<pb::TransitionBatch>,
     fragments: mpsc::Sender<pb::RolloutFragment>,
     reports: mpsc::Sender<pb::EvalReport>,
-    /// How many times the embedder's stream was lost after it had opened.
+    /// How many times the embedder's stream opened again after it was lost.
     embedder_lost: Arc<AtomicU64>,
 }
 
@@ -208,6 +145,7 @@ fn step_until_done(
     );
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
     let mut random_play = RandomPlay::new(config.random_play_share());
+    let mut evaluation: Option<pb::EvalRequest> = None;
     loop {
         report.env_steps = worker.env_steps();
         if stop.load(Ordering::Relaxed) {
@@ -250,20 +188,27 @@ fn step_until_done(
                     report.exit = ActorExit::Finished;
                     return Ok(report);
                 }
-                Control::Evaluate(r) => {
-                    tracing::info!(
-                        "actor {}: {} evaluation episodes on policy v{}",
-                        options.id,
-                        r.episodes,
-                        worker.policy_version().unwrap_or(0)
-                    );
-                    let eval = worker.evaluate(r.episodes as usize, r.seed);
-                    let _ = links
-                        .reports
-                        .blocking_send(eval.to_wire(options.id, r.request_id));
-                    pacing.restart_wait(std::time::Instant::now());
-                }
+                Control::Evaluate(r) => evaluation = Some(r),
             }
+        }
+        // the evaluation runs on the newest weights this actor was sent (an actor asked the
+        // moment it connects, replacing one that died, may not hold them yet)
+        let newest_policy = links.policy.borrow().as_ref().map(|p| p.version);
+        let weights_current = worker.policy_version().is_some()
+            && (newest_policy == worker.policy_version() || newest_policy == refused.1)
+            && (!needs_embedder || worker.embedding_version() > 0);
+        if weights_current && let Some(r) = evaluation.take() {
+            tracing::info!(
+                "actor {}: {} evaluation episodes on policy v{}",
+                options.id,
+                r.episodes,
+                worker.policy_version().unwrap_or(0)
+            );
+            let eval = worker.evaluate(r.episodes as usize, r.seed);
+            let _ = links
+                .reports
+                .blocking_send(eval.to_wire(options.id, r.request_id));
+            pacing.restart_wait(std::time::Instant::now());
         }
         // Random play only until this actor's share of the pre-training transitions is in
         // (another share when the embedder went away before its first embedding); then wait
@@ -276,7 +221,7 @@ fn step_until_done(
             )
         {
             tracing::warn!(
-                "actor {}: the embedder went away before its first embedding; random play for \
+                "actor {}: the embedder went away before its first embedding and is back; random play for \
                  its pre-training again, until {until} env steps",
                 options.id
             );

@@ -31,8 +31,9 @@ where
     watch_embedding_counting_losses(security, url, &AtomicU64::new(0), sink).await;
 }
 
-/// [`watch_embedding`], adding one to `lost` each time a stream that had opened ends: the
-/// embedder went away (a restart, or the connection broke).
+/// [`watch_embedding`], adding one to `lost` each time the stream opens again after an open
+/// one ended: the embedder went away and is back (a restart, or a broken connection), so a
+/// client that fed it can feed the new one.
 pub async fn watch_embedding_counting_losses<F, Fut>(
     security: &Security,
     url: &str,
@@ -49,12 +50,17 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
             return;
         }
     };
+    let mut opened = false;
     let mut backoff = Backoff::default();
     loop {
         let mut client = pb::embedder_client::EmbedderClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
         match client.watch_embedding(pb::WatchRequest::default()).await {
             Ok(response) => {
+                if opened {
+                    lost.fetch_add(1, Ordering::Relaxed);
+                }
+                opened = true;
                 backoff.reset();
                 let mut stream = response.into_inner();
                 let mut chunks = Reassembler::default();
@@ -72,7 +78,6 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
                         }
                     }
                 }
-                lost.fetch_add(1, Ordering::Relaxed);
                 tracing::info!("embedding stream from {url} ended; reconnecting");
             }
             Err(status) => tracing::warn!("embedder {url}: {}", crate::net::status_reason(&status)),

@@ -189,6 +189,11 @@ pub enum ServeError {
     Transport(#[from] tonic::transport::Error),
 }
 
+/// How often a server pings each connection's peer (HTTP/2 PING), and how long it waits for
+/// the answer: a peer whose host vanished without closing the connection is found within
+/// twice this, and its streams end (an actor asked for the evaluation is then replaced).
+pub const KEEPALIVE: std::time::Duration = std::time::Duration::from_secs(20);
+
 /// Serves `service` on `listener` beside `grpc.health.v1.Health` (reporting it SERVING) and
 /// server reflection, until `shutdown` resolves. Every service of the project is served so.
 /// `security` decides TLS and the token, which every service but health requires.
@@ -212,7 +217,9 @@ where
 {
     let (health, health_service) = tonic_health::server::health_reporter();
     health.set_serving::<S>().await;
-    let mut server = tonic::transport::Server::builder();
+    let mut server = tonic::transport::Server::builder()
+        .http2_keepalive_interval(Some(KEEPALIVE))
+        .http2_keepalive_timeout(Some(KEEPALIVE));
     if let Some(tls) = security.server_tls() {
         server = server.tls_config(tls)?;
     }
