@@ -11,7 +11,7 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{repo_root, start_recommender, venv_python};
+use common::{python_json, start_recommender};
 use jsae_proto::wire::pb;
 
 const SETTINGS: &str = r#"
@@ -56,7 +56,6 @@ fn recommend(url: &str, history: &[&str], k: u32) -> Result<pb::RecommendRespons
 
 #[test]
 fn a_python_client_submits_sessions_and_gets_recommendations() {
-    let python = venv_python();
     let dir = std::env::temp_dir().join(format!("jsae-recommender-grpc-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -93,20 +92,10 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
     assert!(health("").status.success());
     assert_eq!(health("jsae.v1.Nothing").status.code(), Some(1));
 
-    let client = Command::new(&python)
-        .arg(repo_root().join("scripts/python/recommender_client.py"))
-        .arg(&addr)
-        .args(["item-0", "item-1", "item-2"])
-        .output()
-        .expect("python runs");
-    assert!(
-        client.status.success(),
-        "the Python client failed: {}{}",
-        String::from_utf8_lossy(&client.stdout),
-        String::from_utf8_lossy(&client.stderr)
+    let seen = python_json(
+        "recommender_client.py",
+        &[addr.as_str(), "item-0", "item-1", "item-2"],
     );
-    let seen: serde_json::Value =
-        serde_json::from_slice(&client.stdout).expect("the client prints JSON");
     assert!(seen["recommend"]["policy_version"].as_u64() > Some(0));
     assert!(seen["recommend"]["embedding_version"].as_u64() > Some(0));
     let errors: Vec<String> = seen["submit"]["errors"]
@@ -262,7 +251,6 @@ fn the_reference_policies_are_served_to_a_python_client() {
     use jsae_recommender::Recommender;
     use jsae_recommender::baseline::PolicyChoice;
 
-    let python = venv_python();
     let dir = std::env::temp_dir().join(format!("jsae-recommender-ref-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).expect("temp dir");
@@ -271,18 +259,10 @@ fn the_reference_policies_are_served_to_a_python_client() {
     let config = jsae_proto::settings::TrainConfig::from_layers(None, None, Some(&settings))
         .expect("settings parse");
     let ask = |addr: &str, history: &[&str]| -> Vec<String> {
-        let out = Command::new(&python)
-            .arg(repo_root().join("scripts/python/recommender_client.py"))
-            .args(["--ask", addr, "5"])
-            .args(history)
-            .output()
-            .expect("python runs");
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
+        let answer = python_json(
+            "recommender_client.py",
+            &[&["--ask", addr, "5"][..], history].concat(),
         );
-        let answer: serde_json::Value = serde_json::from_slice(&out.stdout).expect("JSON");
         assert_eq!(answer["policy_version"], 0, "{answer}");
         answer["items"]
             .as_array()

@@ -9,7 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use common::{Server, free_port, repo_root, start_recommender, venv_python};
+use common::{Server, free_port, python_json, start_recommender};
 use jsae_proto::security::test_certs::TestPki;
 
 /// A deployment's token (32 hex characters).
@@ -145,18 +145,10 @@ fn recommender_with(dir: &Path, extra: &[&str]) -> (Server, String) {
 
 /// Runs the Python client's token check against `addr` (`ca`: "-" for plain text).
 fn python_auth_check(addr: &str, token: &Path, ca: &str) -> serde_json::Value {
-    let script = repo_root().join("scripts/python/recommender_client.py");
-    let out = Command::new(venv_python())
-        .arg(script)
-        .args(["--auth", addr, arg(token), ca, "item-0"])
-        .output()
-        .expect("python runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("one JSON object")
+    python_json(
+        "recommender_client.py",
+        &["--auth", addr, arg(token), ca, "item-0"],
+    )
 }
 
 #[test]
@@ -257,22 +249,14 @@ fn a_python_client_needs_the_token_on_every_embedder_and_learner_rpc_but_health(
         learner_port,
         &[&run[..], &secured, &learner_args].concat(),
     );
-    let script = repo_root().join("scripts/python/services_auth_check.py");
-    let out = Command::new(venv_python())
-        .arg(script)
-        .args([
+    let seen = python_json(
+        "services_auth_check.py",
+        &[
             &format!("127.0.0.1:{embedder_port}"),
             &format!("127.0.0.1:{learner_port}"),
             arg(&token),
-        ])
-        .output()
-        .expect("python runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
+        ],
     );
-    let seen: serde_json::Value = serde_json::from_slice(&out.stdout).expect("one JSON object");
     println!("{seen}");
     let rpcs = [
         "embedder/PushTransitions",

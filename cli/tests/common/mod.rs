@@ -24,6 +24,23 @@ pub fn venv_python() -> PathBuf {
     PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
 }
 
+/// What `scripts/python/SCRIPT ARGS...` prints, one JSON value, run with the venv's Python;
+/// the script must succeed (its stderr is the failure message).
+#[allow(dead_code, reason = "not every test crate runs a Python script")]
+pub fn python_json<S: AsRef<std::ffi::OsStr>>(script: &str, args: &[S]) -> serde_json::Value {
+    let out = Command::new(venv_python())
+        .arg(repo_root().join("scripts/python").join(script))
+        .args(args)
+        .output()
+        .expect("python runs");
+    assert!(
+        out.status.success(),
+        "{script}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("one JSON value")
+}
+
 /// GET `http://ADDR/metrics` (Prometheus text), the body after a 200 answer's headers.
 #[allow(dead_code, reason = "not every test crate scrapes metrics")]
 pub fn scrape_metrics(addr: &str) -> String {
@@ -65,17 +82,7 @@ pub fn free_port() -> u16 {
 /// final evaluation under `eval/`.
 #[allow(dead_code, reason = "not every test crate reads TensorBoard files")]
 pub fn assert_tensorboard_holds_the_metrics(run: &Path) {
-    let out = Command::new(venv_python())
-        .arg(repo_root().join("scripts/python/tensorboard_scalars.py"))
-        .arg(run.join("tensorboard"))
-        .output()
-        .expect("python runs");
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let tags: serde_json::Value = serde_json::from_slice(&out.stdout).expect("json");
+    let tags = python_json("tensorboard_scalars.py", &[run.join("tensorboard")]);
     let text = std::fs::read_to_string(run.join("metrics.csv")).expect("metrics.csv");
     let mut lines = text.lines();
     let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
