@@ -70,31 +70,23 @@ async fn with_a_token_every_rpc_but_health_needs_it() {
         let mut embedder_rpc = pb::embedder_client::EmbedderClient::new(e.clone());
         let mut learner_rpc = pb::learner_client::LearnerClient::new(l.clone());
         let codes = [
-            embedder_rpc
-                .push_transitions(tokio_stream::iter(Vec::<pb::TransitionBatch>::new()))
-                .await
-                .map(|_| ())
-                .map_err(|s| s.code()),
-            embedder_rpc
-                .watch_embedding(pb::WatchRequest::default())
-                .await
-                .map(|_| ())
-                .map_err(|s| s.code()),
-            learner_rpc
-                .push_fragments(tokio_stream::iter(Vec::<pb::RolloutFragment>::new()))
-                .await
-                .map(|_| ())
-                .map_err(|s| s.code()),
-            learner_rpc
-                .watch_policy(pb::WatchRequest::default())
-                .await
-                .map(|_| ())
-                .map_err(|s| s.code()),
-            learner_rpc
-                .report_eval(pb::EvalReport::default())
-                .await
-                .map(|_| ())
-                .map_err(|s| s.code()),
+            outcome(
+                embedder_rpc
+                    .push_transitions(tokio_stream::iter(Vec::<pb::TransitionBatch>::new()))
+                    .await,
+            ),
+            outcome(
+                embedder_rpc
+                    .watch_embedding(pb::WatchRequest::default())
+                    .await,
+            ),
+            outcome(
+                learner_rpc
+                    .push_fragments(tokio_stream::iter(Vec::<pb::RolloutFragment>::new()))
+                    .await,
+            ),
+            outcome(learner_rpc.watch_policy(pb::WatchRequest::default()).await),
+            outcome(learner_rpc.report_eval(pb::EvalReport::default()).await),
             reflection(l.clone()).await,
         ];
         for (i, code) in codes.iter().enumerate() {
@@ -118,6 +110,11 @@ async fn with_a_token_every_rpc_but_health_needs_it() {
     assert_eq!(pushed.map(|r| r.into_inner().accepted).ok(), Some(0));
     learner.stop().await.expect("learner stops");
     embedder.stop().await.expect("embedder stops");
+}
+
+/// A call's outcome: `Ok`, or its status code.
+fn outcome<T>(answer: Result<T, tonic::Status>) -> Result<(), Code> {
+    answer.map(drop).map_err(|s| s.code())
 }
 
 /// Lists the services through reflection: `Ok` once an answer came.

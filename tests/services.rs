@@ -371,15 +371,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
         security: Default::default(),
     };
     let first = start_embedder_with(&c, options.clone()).await;
-    let mut client = pb::embedder_client::EmbedderClient::connect(first.url.clone())
-        .await
-        .expect("connect");
-    let batches = vec![pb::TransitionBatch::from(transitions(512, -0.01))];
-    client
-        .push_transitions(tokio_stream::iter(batches))
-        .await
-        .expect("accepted");
-    assert_eq!(first_embedding_version(&first.url).await, 1);
+    pretrain_to_version_one(&first.url).await;
     first.stop().await.expect("stops cleanly");
     // no new transitions: the restarted embedder serves the saved version at once
     let second = start_embedder_with(&c, options).await;

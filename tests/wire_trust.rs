@@ -31,15 +31,7 @@ async fn a_fragment_of_an_embedding_version_never_published_is_refused_and_train
     c.embedding.pretrain_transitions = 512;
     c.embedding.pretrain_epochs = 1;
     let embedder = start_embedder(&c).await;
-    let mut client = pb::embedder_client::EmbedderClient::connect(embedder.url.clone())
-        .await
-        .expect("connect");
-    let batches = vec![pb::TransitionBatch::from(transitions(512, -0.01))];
-    client
-        .push_transitions(tokio_stream::iter(batches))
-        .await
-        .expect("accepted");
-    assert_eq!(first_embedding_version(&embedder.url).await, 1);
+    pretrain_to_version_one(&embedder.url).await;
     let learner = start_learner(&c, Some(embedder.url.clone())).await;
     let n = half_batch(&c);
     let genuine = |claim: u64| claimed_fragment(&c, 1, 7, claim, n, 1);
@@ -57,12 +49,7 @@ async fn a_fragment_of_an_embedding_version_never_published_is_refused_and_train
         "unknown embedding version 9223372036854775808",
     );
     // the genuine stream goes on: the batch completes and the policy is updated
-    assert_eq!(
-        push_fragments(&learner.url, vec![genuine(2 * n as u64)])
-            .await
-            .expect("accepted"),
-        1
-    );
+    push_all(&learner.url, vec![genuine(2 * n as u64)]).await;
     wait_for_rows(&c.out, 1).await;
     assert_eq!(env_steps_rows(&c), [2 * n as u64]);
     learner.stop().await.expect("learner stops");
@@ -72,12 +59,7 @@ async fn a_fragment_of_an_embedding_version_never_published_is_refused_and_train
     let c = config(EnvName::Gridworld, Algo::Ppo, "trust-no-embedder");
     let learner = start_learner(&c, None).await;
     let f = claimed_fragment(&c, 1, 7, 8, 8, 0);
-    assert_eq!(
-        push_fragments(&learner.url, vec![f])
-            .await
-            .expect("accepted"),
-        1
-    );
+    push_all(&learner.url, vec![f]).await;
     let f = claimed_fragment(&c, 1, 7, 16, 8, 1);
     assert_refused(
         push_fragments(&learner.url, vec![f]).await,
@@ -96,12 +78,7 @@ async fn a_forged_step_claim_neither_ends_the_run_nor_opens_an_evaluation() {
     let n = half_batch(&c);
     let forged = claimed_fragment(&c, 66, 1, 1_000_000_000_000, n, 0);
     let genuine = claimed_fragment(&c, 1, 7, n as u64, n, 0);
-    assert_eq!(
-        push_fragments(&learner.url, vec![forged, genuine])
-            .await
-            .expect("accepted"),
-        2
-    );
+    push_all(&learner.url, vec![forged, genuine]).await;
     // the update after the forged fragment comes, and no evaluation request before it
     match until_snapshot(&mut watch, 1).await {
         Ok(version) => assert_eq!(version, 1),
@@ -164,12 +141,7 @@ async fn only_the_asked_actor_sees_the_evaluation_request_and_only_its_report_co
         claimed_fragment(&c, 4, 7, n as u64, n, 0),
         claimed_fragment(&c, 9, 7, n as u64, n, 0),
     ];
-    assert_eq!(
-        push_fragments(&learner.url, fragments)
-            .await
-            .expect("accepted"),
-        2
-    );
+    push_all(&learner.url, fragments).await;
     // actor 9's fragment reached the run's env steps: it is asked
     let mut asked = watch_policy(&learner.url, 9).await;
     let request = until_snapshot(&mut asked, u64::MAX)
@@ -223,12 +195,7 @@ async fn an_asked_actor_that_dies_before_it_reports_is_replaced_and_the_run_ends
         claimed_fragment(&c, 9, 7, n as u64, n, 0),
         claimed_fragment(&c, 9, 7, 2 * n as u64, n, 0),
     ];
-    assert_eq!(
-        push_fragments(&learner.url, fragments)
-            .await
-            .expect("accepted"),
-        2
-    );
+    push_all(&learner.url, fragments).await;
     let request = until_snapshot(&mut asked, u64::MAX)
         .await
         .expect_err("an evaluation request");
@@ -257,12 +224,7 @@ async fn two_incarnations_of_one_actor_id_are_both_counted() {
         claimed_fragment(&c, 0, 0x1111, n as u64, n, 0),
         claimed_fragment(&c, 0, 0x2222, n as u64, n, 0),
     ];
-    assert_eq!(
-        push_fragments(&learner.url, fragments)
-            .await
-            .expect("accepted"),
-        2
-    );
+    push_all(&learner.url, fragments).await;
     wait_for_rows(&c.out, 1).await;
     assert_eq!(env_steps_rows(&c), [2 * n as u64]);
     learner.stop().await.expect("learner stops");

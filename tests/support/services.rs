@@ -247,6 +247,26 @@ pub async fn push_fragments(
         .map(|r| r.into_inner().accepted)
 }
 
+/// Pushes `msgs` to the learner at `url`, which must accept every one.
+pub async fn push_all(url: &str, msgs: Vec<pb::RolloutFragment>) {
+    let n = msgs.len() as u64;
+    assert_eq!(push_fragments(url, msgs).await.expect("accepted"), n);
+}
+
+/// Pushes 512 transitions to the embedder at `url` (whose pre-training takes 512) and waits
+/// for its first embedding, version 1.
+pub async fn pretrain_to_version_one(url: &str) {
+    let mut client = pb::embedder_client::EmbedderClient::connect(url.to_string())
+        .await
+        .expect("connect");
+    let batches = vec![pb::TransitionBatch::from(transitions(512, -0.01))];
+    client
+        .push_transitions(tokio_stream::iter(batches))
+        .await
+        .expect("accepted");
+    assert_eq!(first_embedding_version(url).await, 1);
+}
+
 pub fn transitions(n: usize, reward: f32) -> TransitionBatch {
     TransitionBatch {
         actor_id: 9,

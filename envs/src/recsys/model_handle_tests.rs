@@ -2,6 +2,8 @@
 //! exactly as a build from all the sessions would; a restart starts from the checkpoint;
 //! the logged steps.
 
+use std::path::PathBuf;
+
 use super::*;
 use crate::recsys::store::SessionStore;
 use crate::recsys::{Purchase, Session};
@@ -22,21 +24,28 @@ fn session(id: &str, items: &[&str]) -> Session {
     }
 }
 
-#[test]
-fn sessions_added_to_the_store_reshape_the_model_at_the_next_refresh() {
-    let dir = std::env::temp_dir().join(format!("jsae-refresh-{}", std::process::id()));
+/// A fresh store directory `jsae-NAME-PID` and the settings of a synthetic source of 25
+/// items and `sessions` sessions, its `top_n` most popular items kept.
+fn synthetic_store(name: &str, top_n: u32, sessions: u32) -> (PathBuf, RecommenderConfig) {
+    let dir = std::env::temp_dir().join(format!("jsae-{name}-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let config = RecommenderConfig {
         source: SessionSource::Synthetic,
-        top_n: 30,
+        top_n,
         store_dir: dir.clone(),
         synthetic: SyntheticConfig {
             items: 25,
-            sessions: 500,
+            sessions,
             ..SyntheticConfig::default()
         },
         ..RecommenderConfig::default()
     };
+    (dir, config)
+}
+
+#[test]
+fn sessions_added_to_the_store_reshape_the_model_at_the_next_refresh() {
+    let (dir, config) = synthetic_store("refresh", 30, 500);
     let handle = ModelHandle::load(&config).expect("loads");
     let before = handle.current();
     assert_eq!(before.catalogue().len(), 25);
@@ -74,20 +83,8 @@ fn sessions_added_to_the_store_reshape_the_model_at_the_next_refresh() {
 
 #[test]
 fn logged_steps_are_every_purchase_after_the_first_with_the_state_before_it() {
-    let dir = std::env::temp_dir().join(format!("jsae-logged-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let config = RecommenderConfig {
-        source: SessionSource::Synthetic,
-        top_n: 25,
-        holdout: 0.2,
-        store_dir: dir.clone(),
-        synthetic: SyntheticConfig {
-            items: 25,
-            sessions: 300,
-            ..SyntheticConfig::default()
-        },
-        ..RecommenderConfig::default()
-    };
+    let (dir, mut config) = synthetic_store("logged", 25, 300);
+    config.holdout = 0.2;
     let base = ModelHandle::load(&config).expect("loads");
     let catalogue = base.current().catalogue().clone();
     let (a, b, c) = (
@@ -155,19 +152,7 @@ fn assert_same_model(got: &NgramModel, want: &NgramModel) {
 
 #[test]
 fn a_restart_counts_the_store_from_its_checkpoint_as_a_build_from_every_session_would() {
-    let dir = std::env::temp_dir().join(format!("jsae-checkpoint-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    let config = RecommenderConfig {
-        source: SessionSource::Synthetic,
-        top_n: 30,
-        store_dir: dir.clone(),
-        synthetic: SyntheticConfig {
-            items: 25,
-            sessions: 300,
-            ..SyntheticConfig::default()
-        },
-        ..RecommenderConfig::default()
-    };
+    let (dir, config) = synthetic_store("checkpoint", 30, 300);
     let handle = ModelHandle::load(&config).expect("loads");
     let catalogue = handle.current().catalogue().clone();
     let (a, b) = (
