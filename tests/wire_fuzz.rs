@@ -58,6 +58,7 @@ fn rpcs() -> Vec<Rpc> {
     let watch = pb::WatchRequest {
         actor_id: 3,
         evaluates: true,
+        rollout_steps: 64,
     }
     .encode_to_vec();
     let rpc = |service, path, shape, valid| Rpc {

@@ -330,8 +330,13 @@ pub async fn run(
         let url = options.learner.clone();
         let id = options.id;
         let watching = security.clone();
+        let hello = pb::WatchRequest {
+            actor_id: id,
+            evaluates: true,
+            rollout_steps: (config.envs_per_actor * config.rollout_len) as u64,
+        };
         tasks.spawn(async move {
-            client::watch_policy(&watching, &url, Some(id), |event| {
+            client::watch_policy(&watching, &url, hello, |event| {
                 let go_on = match event {
                     PolicyEvent::Snapshot(s) => {
                         policy_tx.send_replace(Some(Arc::new(s)));

@@ -24,10 +24,14 @@ pub enum Command {
         /// the same run.
         #[arg(long)]
         learner: bool,
-        /// Only end-to-end HalfCheetah PPO env-steps/s with 1 and 2 actors (4 where there
-        /// are cores) sharing one batch, beside raw env stepping measured in the same run.
+        /// Only the actor ladder: end-to-end HalfCheetah PPO env-steps/s as separate
+        /// processes with each count of `--actors` (the batch one rollout of every actor),
+        /// beside raw env stepping and the learner's own limit measured in the same run.
         #[arg(long)]
         scaling: bool,
+        /// The ladder's actor counts, e.g. `1,2,4,8` [default: 1, 2, 4, ... up to the cores].
+        #[arg(long, value_delimiter = ',', requires = "scaling")]
+        actors: Vec<usize>,
         /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
         /// env, the actor with batched inference, Gymnasium).
         #[arg(long)]
@@ -145,12 +149,22 @@ pub fn run(command: Command) -> ExitCode {
             transport,
             learner,
             scaling,
+            actors,
             mujoco,
             recommender,
             envs,
         } => {
             if scaling {
-                print!("{}", crate::bench::scaling::run(quick));
+                if actors.contains(&0) {
+                    eprintln!("--actors: every count must be at least 1");
+                    return ExitCode::from(2);
+                }
+                let ladder = if actors.is_empty() {
+                    crate::bench::scaling::default_ladder()
+                } else {
+                    actors
+                };
+                print!("{}", crate::bench::scaling::run(&ladder, quick));
                 return ExitCode::SUCCESS;
             }
             if learner {

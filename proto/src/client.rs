@@ -87,11 +87,17 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
 }
 
 /// Follows the learner at `url`: snapshots, evaluation requests and the end of the run go to
-/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL). `actor` is the
-/// id of an actor, which the learner may ask for evaluation episodes while its stream is open;
-/// None for a follower that only reads the snapshots.
-pub async fn watch_policy<F, Fut>(security: &Security, url: &str, actor: Option<u64>, mut sink: F)
-where
+/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL). `request` says
+/// who watches, sent again on every reconnection: an actor (`evaluates`, its id and its
+/// rollout's env steps), which the learner counts in its batch and may ask for evaluation
+/// episodes while its stream is open, or the default for a follower that only reads the
+/// snapshots.
+pub async fn watch_policy<F, Fut>(
+    security: &Security,
+    url: &str,
+    request: pb::WatchRequest,
+    mut sink: F,
+) where
     F: FnMut(PolicyEvent) -> Fut,
     Fut: Future<Output = bool>,
 {
@@ -107,13 +113,7 @@ where
     loop {
         let mut client = pb::learner_client::LearnerClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
-        match client
-            .watch_policy(pb::WatchRequest {
-                actor_id: actor.unwrap_or(0),
-                evaluates: actor.is_some(),
-            })
-            .await
-        {
+        match client.watch_policy(request).await {
             Ok(response) => {
                 backoff.reset();
                 let mut stream = response.into_inner();

@@ -189,6 +189,10 @@ pub enum ServeError {
     Transport(#[from] tonic::transport::Error),
 }
 
+/// How long a server waits, once shutting down, for its open calls to end before it drops
+/// their connections.
+pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
+
 /// How often a server pings each connection's peer (HTTP/2 PING), and how long it waits for
 /// the answer: a peer whose host vanished without closing the connection is found within
 /// twice this, and its streams end (an actor asked for the evaluation is then replaced).
@@ -223,12 +227,33 @@ where
     if let Some(tls) = security.server_tls() {
         server = server.tls_config(tls)?;
     }
-    server
+    let (stopped_tx, stopped_rx) = tokio::sync::oneshot::channel::<()>();
+    let signal = async move {
+        shutdown.await;
+        let _ = stopped_tx.send(());
+    };
+    let serving = server
         .add_service(health_service)
         .add_service(security.guard(reflection()?))
         .add_service(security.guard(service))
-        .serve_with_incoming_shutdown(incoming(listener), shutdown)
-        .await?;
+        .serve_with_incoming_shutdown(incoming(listener), signal);
+    tokio::pin!(serving);
+    // a graceful shutdown waits for every open call to end; a client that stops reading a
+    // server stream never lets it end, so after SHUTDOWN_GRACE its connection is dropped
+    let grace = async move {
+        if stopped_rx.await.is_ok() {
+            tokio::time::sleep(SHUTDOWN_GRACE).await;
+        } else {
+            std::future::pending::<()>().await;
+        }
+    };
+    tokio::select! {
+        served = &mut serving => served?,
+        () = grace => tracing::warn!(
+            "calls still open {} s after the shutdown began: their connections are dropped",
+            SHUTDOWN_GRACE.as_secs()
+        ),
+    }
     Ok(())
 }
 

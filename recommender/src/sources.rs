@@ -8,6 +8,7 @@ use std::time::Duration;
 use jsae_proto::client::{self, PolicyEvent};
 use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::security::Security;
+use jsae_proto::wire::pb;
 use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
 
 use crate::scoring::Recommender;
@@ -107,7 +108,7 @@ pub fn follow(
         let rec = rec.clone();
         let security = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&security, &url, None, |event| {
+            client::watch_policy(&security, &url, pb::WatchRequest::default(), |event| {
                 if let PolicyEvent::Snapshot(s) = &event {
                     match rec.set_policy(s) {
                         Ok(()) => tracing::debug!("recommender: policy v{}", s.version),

@@ -74,6 +74,8 @@ pub struct LearnerMetrics {
     queue_depth: Gauge,
     fragments: Counter,
     dropped: Family<Label, Gauge>,
+    actors: Family<Label, Gauge>,
+    actor_steps: Family<Vec<(&'static str, String)>, Counter>,
 }
 
 impl LearnerMetrics {
@@ -122,7 +124,35 @@ impl LearnerMetrics {
             "Fragments dropped so far, by reason (lag, embedding)",
             m.dropped.clone(),
         );
+        r.register(
+            "actors",
+            "Actors with an open policy stream (connected), and those of them in the batch \
+             (present)",
+            m.actors.clone(),
+        );
+        r.register(
+            "actor_env_steps",
+            "Env steps of the fragments received, by actor id",
+            m.actor_steps.clone(),
+        );
         m
+    }
+
+    /// Actors connected, and present in the batch.
+    pub fn observe_actors(&self, (connected, present): (usize, usize)) {
+        self.actors
+            .get_or_create(&[("state", "connected")])
+            .set(gauge(connected as u64));
+        self.actors
+            .get_or_create(&[("state", "present")])
+            .set(gauge(present as u64));
+    }
+
+    /// A fragment of `steps` env steps came from actor `actor`.
+    pub fn observe_actor_steps(&self, actor: u64, steps: u64) {
+        self.actor_steps
+            .get_or_create(&vec![("actor", actor.to_string())])
+            .inc_by(steps);
     }
 
     /// A fragment was handled; `sample` is the learner's state after it.

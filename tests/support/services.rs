@@ -348,6 +348,7 @@ pub async fn watch_policy(url: &str, actor_id: u64) -> tonic::Streaming<pb::Poli
         .watch_policy(pb::WatchRequest {
             actor_id,
             evaluates: true,
+            ..Default::default()
         })
         .await
         .expect("watch")

@@ -39,7 +39,9 @@ pub struct LearnerBench {
     pub minibatch: usize,
     /// Epochs the update ran (the KL stop may end it early).
     pub epochs: usize,
-    /// Milliseconds per update of 2,048 samples.
+    /// Samples per update.
+    pub batch: usize,
+    /// Milliseconds per update (of `batch` samples).
     pub update_ms: f64,
     /// Dense-product FLOPs per second achieved.
     pub gflops: f64,
@@ -76,11 +78,26 @@ fn one_hot_rows(x: &mut [f32], sizes: &[usize], rng: &mut ChaCha8Rng) {
 /// Times `updates` PPO updates of 2,048 synthetic samples under `env`/`algo`'s defaults on
 /// the given update path, after one untimed warm-up update.
 pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) -> LearnerBench {
+    bench_batch(env, algo, updates, path, BATCH)
+}
+
+/// [`bench_case`] with batches of `batch` samples (whole fragments of 128 steps): what the
+/// learner does per update when `batch / 2048` actors of 16 environments feed it, so
+/// `batch / update_ms` is the most env steps per second it can take in (gRPC decoding and
+/// the checkpoint left out).
+pub fn bench_batch(
+    env: EnvName,
+    algo: Algo,
+    updates: usize,
+    path: UpdatePath,
+    batch: usize,
+) -> LearnerBench {
+    let batch = batch.div_ceil(FRAGMENT).max(1) * FRAGMENT;
     let config = TrainConfig::defaults(env, algo);
     let (states, actions) = config.spaces();
     let (input, head) = policy_shape(&config, &states, &actions);
     let mut ppo = config.ppo.clone();
-    ppo.batch_steps = BATCH;
+    ppo.batch_steps = batch;
     ppo.update = path;
     let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
     // plain PPO on categorical states reads them one-hot, as the actors encode them
@@ -98,7 +115,7 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
     // one update first, untimed: buffers, the allocator's pages and the optimiser's state
     // are set up there, and every later update reuses them
     for timed in std::iter::once(false).chain(std::iter::repeat_n(true, updates.max(1))) {
-        let batch: Vec<RolloutFragment> = (0..BATCH / FRAGMENT)
+        let fragments: Vec<RolloutFragment> = (0..batch / FRAGMENT)
             .map(|_| {
                 let mut f = jsae_learner::synthetic::fragment(
                     input,
@@ -116,7 +133,7 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
             })
             .collect();
         let t = Instant::now();
-        for f in batch {
+        for f in fragments {
             if let Ok(Ingested::Updated(report)) = learner.ingest(f)
                 && timed
             {
@@ -132,13 +149,14 @@ pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) ->
     // the products done: a one-hot input row multiplies one weight row per factor
     let read = one_hot.as_ref().map_or(input, Vec::len);
     let weights = mlp_weights(read, &ppo.hidden, outputs) + mlp_weights(read, &ppo.hidden, 1);
-    let flops = 6.0 * weights as f64 * BATCH as f64 * epochs as f64;
+    let flops = 6.0 * weights as f64 * batch as f64 * epochs as f64;
     LearnerBench {
         case: format!("{}/{}", env.as_str(), algo.as_str()),
         input,
         head: head_name,
         minibatch: ppo.minibatch_size,
         epochs: epochs / n,
+        batch,
         update_ms: elapsed * 1e3 / n as f64,
         gflops: flops / elapsed / 1e9,
     }

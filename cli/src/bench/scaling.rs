@@ -1,8 +1,16 @@
-//! `jsae bench --scaling`: end-to-end HalfCheetah PPO env-steps/s as separate processes
-//! (learner + actors over loopback gRPC) with 1 and 2 actors (4 where there are 4 cores)
-//! sharing one batch of 2,048 steps, with and without collecting the next rollout while the
-//! learner updates (`rollouts_per_policy` 1 and 2), beside one process and beside our
-//! environment's raw random-action stepping measured in the same run.
+//! `jsae bench --scaling [--actors 1,2,4,8]`: the actor ladder. HalfCheetah PPO end to end as
+//! separate processes (learner + N actors over loopback gRPC, as `jsae train --actors N`
+//! starts them), every actor with the default 16 environments x 128 steps, so the learner's
+//! batch is one rollout of every actor (N x 2,048 steps: the batch grows with the actors, the
+//! learner counting them by their policy streams), with `rollouts_per_policy` 1 and 2 (2: the
+//! next rollout is collected while the learner updates). Beside the ladder, measured in the
+//! same run:
+//! - raw stepping: our environment with random actions on one thread, the unit of the ratios;
+//! - the learner's limit: env steps per second its PPO update takes in at each batch size
+//!   (synthetic fragments ingested in one process: validation, GAE, every epoch, the
+//!   snapshot; gRPC decoding and the checkpoint left out), the rate no number of actors can
+//!   pass;
+//! - one process (`--one-process`, one actor's batch).
 //!
 //! The rate is the steady state: env steps between the first and the last update over the
 //! wall time between them (start-up and the final evaluation left out). Lag and drops are
@@ -11,13 +19,16 @@
 use std::path::{Path, PathBuf};
 
 use jsae_envs::{EnvName, Robot};
-use jsae_learner::MetricsTable;
+use jsae_learner::{MetricsTable, UpdatePath};
 use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{Algo, TrainConfig};
 
 use crate::launch;
 use crate::progress::Progress;
 use crate::train::train_one_process;
+
+/// Env steps of one actor's rollout under the defaults (16 x 128).
+const ROLLOUT: usize = 2048;
 
 /// One measured set-up.
 #[derive(Debug, Clone, PartialEq)]
@@ -26,20 +37,22 @@ pub struct ScalingRow {
     pub mode: &'static str,
     /// Actors.
     pub actors: usize,
-    /// Environments per actor.
-    pub envs: usize,
+    /// The learner's batch (one rollout of every actor).
+    pub batch: usize,
     /// Rollouts an actor sends per policy version (2: overlapped with the update).
     pub rollouts_per_policy: usize,
     /// Steady-state env steps per second.
     pub steps_per_s: f64,
+    /// The learner's limit at this batch (env steps per second its update takes in).
+    pub learner_limit: f64,
     /// Mean policy lag over the run's updates.
     pub lag_mean: f64,
-    /// Fragments dropped for lag.
-    pub dropped_lag: u64,
+    /// Fragments dropped for lag, and for an outdated embedding.
+    pub dropped: (u64, u64),
 }
 
 /// Steady-state rate, mean lag and drops from a run's `metrics.csv`.
-fn steady_state(dir: &Path) -> anyhow::Result<(f64, f64, u64)> {
+fn steady_state(dir: &Path) -> anyhow::Result<(f64, f64, (u64, u64))> {
     let table = MetricsTable::read(&RunDir::new(dir).metrics_csv())?;
     let col = |name: &str| -> Vec<f64> { table.column(name).into_iter().flatten().collect() };
     let (steps, wall, lag) = (
@@ -55,14 +68,17 @@ fn steady_state(dir: &Path) -> anyhow::Result<(f64, f64, u64)> {
     let n = steps.len() - 1;
     let rate = (steps[n] - steps[0]) / (wall[n] - wall[0]).max(1e-9);
     let lag_mean = lag.iter().sum::<f64>() / lag.len().max(1) as f64;
-    let dropped = col("dropped_lag").last().copied().unwrap_or(0.0) as u64;
-    Ok((rate, lag_mean, dropped))
+    let last = |name: &str| col(name).last().copied().unwrap_or(0.0) as u64;
+    Ok((
+        rate,
+        lag_mean,
+        (last("dropped_lag"), last("dropped_embedding")),
+    ))
 }
 
 fn config(actors: usize, rollouts_per_policy: usize, env_steps: u64, out: PathBuf) -> TrainConfig {
     let mut c = TrainConfig::defaults(EnvName::HalfCheetah, Algo::Ppo);
     c.actors = actors;
-    c.envs_per_actor = (c.envs_per_actor / actors).max(1);
     c.rollouts_per_policy = rollouts_per_policy;
     c.env_steps = env_steps;
     c.eval_episodes = 1;
@@ -70,43 +86,64 @@ fn config(actors: usize, rollouts_per_policy: usize, env_steps: u64, out: PathBu
     c
 }
 
-/// Measures every set-up with `env_steps` per run.
-pub fn measure(env_steps: u64) -> anyhow::Result<Vec<ScalingRow>> {
+/// Env steps of a run of `actors`: enough updates for a steady state at any batch.
+fn run_steps(actors: usize, quick: bool) -> u64 {
+    let batch = (actors * ROLLOUT) as u64;
+    if quick {
+        (8 * batch).max(40_960)
+    } else {
+        (30 * batch).max(204_800)
+    }
+}
+
+/// The learner's limit at a batch of `actors` rollouts: env steps per second.
+pub fn learner_limit(actors: usize, quick: bool) -> f64 {
+    let b = super::learner::bench_batch(
+        EnvName::HalfCheetah,
+        Algo::Ppo,
+        if quick { 2 } else { 5 },
+        UpdatePath::Fused,
+        actors * ROLLOUT,
+    );
+    b.batch as f64 / (b.update_ms / 1e3).max(1e-9)
+}
+
+/// Measures one process and every rung of the ladder.
+pub fn measure(ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>> {
     let root = std::env::temp_dir().join(format!("jsae-bench-scaling-{}", std::process::id()));
-    let rows = measure_in(&root, env_steps);
+    let rows = measure_in(&root, ladder, quick);
     let _ = std::fs::remove_dir_all(&root);
     rows
 }
 
-fn measure_in(root: &Path, env_steps: u64) -> anyhow::Result<Vec<ScalingRow>> {
+fn measure_in(root: &Path, ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>> {
     let exe = launch::current_exe()?;
-    let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let mut rows = Vec::new();
-    let mut progress = Progress::new(env_steps, true);
-    let one = config(1, 1, env_steps, root.join("one-process"));
+    let one = config(1, 1, run_steps(1, quick), root.join("one-process"));
+    let mut progress = Progress::new(one.env_steps, true);
     train_one_process(&one, &mut progress)?;
     let (rate, lag, dropped) = steady_state(&one.out)?;
+    let limit_one = learner_limit(1, quick);
     rows.push(ScalingRow {
         mode: "one process",
         actors: 1,
-        envs: one.envs_per_actor,
+        batch: ROLLOUT,
         rollouts_per_policy: 1,
         steps_per_s: rate,
+        learner_limit: limit_one,
         lag_mean: lag,
-        dropped_lag: dropped,
+        dropped,
     });
-    let actor_counts: Vec<usize> = [1, 2, 4]
-        .into_iter()
-        .filter(|&a| a <= cores.max(2))
-        .collect();
-    for actors in actor_counts {
+    for &actors in ladder {
+        let limit = learner_limit(actors, quick);
         for rollouts in [1, 2] {
             let c = config(
                 actors,
                 rollouts,
-                env_steps,
+                run_steps(actors, quick),
                 root.join(format!("a{actors}-r{rollouts}")),
             );
+            let mut progress = Progress::new(c.env_steps, true);
             launch::train_processes(
                 &c,
                 &crate::train::RunOptions::default(),
@@ -117,53 +154,91 @@ fn measure_in(root: &Path, env_steps: u64) -> anyhow::Result<Vec<ScalingRow>> {
             rows.push(ScalingRow {
                 mode: "processes",
                 actors,
-                envs: c.envs_per_actor,
+                batch: actors * ROLLOUT,
                 rollouts_per_policy: rollouts,
                 steps_per_s: rate,
+                learner_limit: limit,
                 lag_mean: lag,
-                dropped_lag: dropped,
+                dropped,
             });
         }
     }
     Ok(rows)
 }
 
+/// The ladder's actor counts by default: 1, 2, 4, ... up to the machine's cores (2 at least).
+pub fn default_ladder() -> Vec<usize> {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
+    std::iter::successors(Some(1usize), |a| Some(a * 2))
+        .take_while(|&a| a <= cores.max(2))
+        .collect()
+}
+
 /// Runs the measurement and formats the table.
-pub fn run(quick: bool) -> String {
-    let env_steps = if quick { 40_960 } else { 204_800 };
+pub fn run(ladder: &[usize], quick: bool) -> String {
     let raw = super::mujoco::env_rate(Robot::HalfCheetah, if quick { 20_000 } else { 100_000 });
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let mut out = format!(
-        "HalfCheetah PPO end to end, batch 2,048, {env_steps} env steps per run; raw stepping \
-         (our env, random actions, one thread, this run): {raw:.0} steps/s\n"
+        "HalfCheetah PPO end to end, {cores} cores; every actor 16 envs x 128 steps, the batch one \
+         rollout of every actor; raw stepping (our env, random actions, one thread, this run): \
+         {raw:.0} steps/s\n"
     );
     out.push_str(&format!(
-        "{:<12} {:>6} {:>5} {:>9} {:>12} {:>7} {:>8} {:>8}\n",
-        "mode", "actors", "envs", "rollouts", "env-steps/s", "/raw", "lag", "dropped"
+        "{:<12} {:>6} {:>6} {:>9} {:>12} {:>7} {:>13} {:>8} {:>6} {:>8} {:>9}\n",
+        "mode",
+        "actors",
+        "batch",
+        "rollouts",
+        "env-steps/s",
+        "/raw",
+        "learner limit",
+        "/limit",
+        "lag",
+        "dropped",
+        "dropped e"
     ));
-    match measure(env_steps) {
+    match measure(ladder, quick) {
         Ok(rows) => {
             for r in rows {
                 out.push_str(&format!(
-                    "{:<12} {:>6} {:>5} {:>9} {:>12.0} {:>7.3} {:>8.2} {:>8}\n",
+                    "{:<12} {:>6} {:>6} {:>9} {:>12.0} {:>7.2} {:>13.0} {:>8.2} {:>6.2} {:>8} {:>9}\n",
                     r.mode,
                     r.actors,
-                    r.envs,
+                    r.batch,
                     r.rollouts_per_policy,
                     r.steps_per_s,
                     r.steps_per_s / raw,
+                    r.learner_limit,
+                    r.steps_per_s / r.learner_limit,
                     r.lag_mean,
-                    r.dropped_lag
+                    r.dropped.0,
+                    r.dropped.1
                 ));
             }
         }
         Err(e) => out.push_str(&format!("scaling not measured: {e}\n")),
     }
     out.push_str(
-        "envs: per actor (the batch stays 2,048); rollouts: an actor may have out before a newer \
-         policy answers them (2: the \
-         next rollout is collected while the learner updates); env-steps/s: between the first \
-         and the last update; lag: mean policy lag of the fragments; dropped: fragments \
-         dropped for lag\n",
+        "batch: one rollout of every actor; rollouts: an actor may have out before a newer \
+         policy answers them (2: the next rollout is collected while the learner updates); \
+         env-steps/s: between the first and the last update; /raw: over one core's raw \
+         stepping; learner limit: env steps/s the PPO update takes in at this batch (in one \
+         process, synthetic fragments; no actor count can pass it); lag: mean policy lag of \
+         the fragments; dropped, dropped e: fragments dropped for lag, for an outdated \
+         embedding\n",
     );
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_ladder_doubles_up_to_the_cores() {
+        let ladder = default_ladder();
+        assert_eq!(&ladder[..2], &[1, 2]);
+        assert!(ladder.windows(2).all(|w| w[1] == 2 * w[0]));
+        assert!(run_steps(8, false) >= 30 * 8 * ROLLOUT as u64);
+    }
 }

@@ -305,6 +305,31 @@ impl Learner {
         Ok(Ingested::Updated(Box::new(report)))
     }
 
+    /// Env steps buffered towards the next update.
+    pub fn pending_steps(&self) -> usize {
+        self.pending_steps
+    }
+
+    /// The env steps of the next batch (the learner service sets it to one rollout of every
+    /// actor present as actors come and go); updates at once, with the report, when what is
+    /// buffered already makes the new batch.
+    pub fn set_batch_steps(&mut self, steps: usize) -> Result<Option<UpdateReport>, LearnerError> {
+        self.config.batch_steps = steps.max(1);
+        if self.pending.is_empty() || self.pending_steps < self.config.batch_steps {
+            return Ok(None);
+        }
+        self.update().map(Some)
+    }
+
+    /// Updates on what is buffered, however short of the batch (a round whose missing
+    /// actors are overdue); None when nothing is.
+    pub fn close_round(&mut self) -> Result<Option<UpdateReport>, LearnerError> {
+        if self.pending.is_empty() {
+            return Ok(None);
+        }
+        self.update().map(Some)
+    }
+
     fn learning_rate(&self) -> f64 {
         if !self.config.anneal_lr || self.total_env_steps == 0 {
             return self.config.lr;
@@ -319,17 +344,24 @@ impl Learner {
         let batch_steps = self.pending_steps;
         self.pending_steps = 0;
         let lr = self.learning_rate();
-        let batch = Batch::build(
-            &self.policy,
-            fragments,
-            &self.config,
-            self.reward_scaler.as_mut(),
-            &mut self.buffers,
-        );
-        let metrics = self.optimise(&batch, lr);
-        // After the update: the actors' next rollouts use these statistics with these weights.
-        self.policy.update_obs_stats(&batch.x);
-        self.buffers.recycle(batch);
+        let mut metrics = UpdateMetrics::default();
+        let mut epochs = 0;
+        for part in split_batch(fragments, self.config.max_update_steps) {
+            let batch = Batch::build(
+                &self.policy,
+                part,
+                &self.config,
+                self.reward_scaler.as_mut(),
+                &mut self.buffers,
+            );
+            metrics = self.optimise(&batch, lr);
+            epochs += metrics.epochs;
+            // After the update: the actors' next rollouts use these statistics with these
+            // weights.
+            self.policy.update_obs_stats(&batch.x);
+            self.buffers.recycle(batch);
+        }
+        metrics.epochs = epochs;
         self.version += 1;
         self.updates += 1;
         let episodes = std::mem::take(&mut self.episodes);
@@ -356,6 +388,31 @@ impl Learner {
             snapshot: self.snapshot()?,
         })
     }
+}
+
+/// A batch's fragments in consecutive parts of at least `max` steps each (the last takes
+/// what remains when less than `max` would be left over), in arrival order; the whole batch
+/// when `max` is None.
+fn split_batch(fragments: Vec<RolloutFragment>, max: Option<usize>) -> Vec<Vec<RolloutFragment>> {
+    let Some(max) = max.filter(|&m| m > 0) else {
+        return vec![fragments];
+    };
+    let total: usize = fragments.iter().map(RolloutFragment::len).sum();
+    let mut parts = vec![Vec::new()];
+    let (mut in_part, mut left) = (0, total);
+    for f in fragments {
+        // a new part once this one is full, unless what is left would make a short last one
+        if in_part >= max && left >= max {
+            parts.push(Vec::new());
+            in_part = 0;
+        }
+        in_part += f.len();
+        left -= f.len();
+        if let Some(part) = parts.last_mut() {
+            part.push(f);
+        }
+    }
+    parts
 }
 
 fn episode_means(episodes: &[EpisodeStat]) -> (Option<f64>, Option<f64>) {

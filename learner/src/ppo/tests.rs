@@ -240,3 +240,75 @@ fn ingest_refuses_an_absurd_reward_and_a_claim_that_goes_back_and_credits_no_mor
     learner.ingest(forged).expect("well formed");
     assert_eq!(learner.env_steps(), 16);
 }
+
+#[test]
+fn a_batch_is_split_into_parts_of_at_least_the_update_size_in_arrival_order() {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let head = PolicyHead::Gaussian { dim: 2 };
+    let frags = |lens: &[usize], rng: &mut ChaCha8Rng| {
+        lens.iter()
+            .enumerate()
+            .map(|(i, &n)| {
+                let mut f = crate::synthetic::fragment(3, head, 0, n, rng);
+                f.env_index = i as u32;
+                f
+            })
+            .collect::<Vec<_>>()
+    };
+    let sizes = |parts: Vec<Vec<jsae_proto::RolloutFragment>>| -> Vec<Vec<u32>> {
+        parts
+            .iter()
+            .map(|p| p.iter().map(|f| f.env_index).collect())
+            .collect()
+    };
+    let whole = super::split_batch(frags(&[4, 4, 4], &mut rng), None);
+    assert_eq!(sizes(whole), [vec![0, 1, 2]]);
+    let two = super::split_batch(frags(&[4, 4, 4, 4], &mut rng), Some(8));
+    assert_eq!(sizes(two), [vec![0, 1], vec![2, 3]]);
+    // 12 steps at 8: no short last part
+    let one = super::split_batch(frags(&[4, 4, 4], &mut rng), Some(8));
+    assert_eq!(sizes(one), [vec![0, 1, 2]]);
+}
+
+#[test]
+fn a_batch_of_two_rollouts_updated_in_two_parts_publishes_one_version() {
+    let mut rng = ChaCha8Rng::seed_from_u64(4);
+    let head = PolicyHead::Gaussian { dim: 2 };
+    let config = PpoConfig {
+        batch_steps: 4 * STEPS,
+        epochs: 2,
+        minibatch_size: 64,
+        max_update_steps: Some(2 * STEPS),
+        ..PpoConfig::default()
+    };
+    let mut whole = Learner::new(
+        PpoConfig {
+            max_update_steps: None,
+            ..config.clone()
+        },
+        3,
+        head,
+        1 << 20,
+        1,
+        DeviceKind::Flex,
+    );
+    let mut split = Learner::new(config, 3, head, 1 << 20, 1, DeviceKind::Flex);
+    let mut reports = Vec::new();
+    for k in 0..4u64 {
+        let f = crate::synthetic::fragment(3, head, 0, STEPS, &mut rng);
+        let mut f = f;
+        f.actor_env_steps = (k + 1) * STEPS as u64;
+        whole.ingest(f.clone()).expect("ingests");
+        if let super::Ingested::Updated(r) = split.ingest(f).expect("ingests") {
+            reports.push(r);
+        }
+    }
+    assert_eq!(reports.len(), 1);
+    assert_eq!((split.version(), whole.version()), (1, 1));
+    assert_eq!(reports[0].metrics.epochs, 4, "two parts of two epochs");
+    assert_ne!(
+        flat(&split),
+        flat(&whole),
+        "two passes move the weights otherwise"
+    );
+}

@@ -1,23 +1,20 @@
 //! Who runs the end-of-run evaluation. The learner asks the actor whose fragment reached the
-//! run's env steps; it knows which actors are alive by their open policy streams, so when the
-//! asked actor's last stream closes (the actor died, or its connection did) it asks another
-//! actor whose stream is open, or the next one to connect. Each request has a fresh random id;
-//! only the open one is answered.
-
-use std::collections::BTreeMap;
+//! run's env steps; it knows which actors are alive by their open policy streams (the
+//! [`Roster`]), so when the asked actor's last stream closes (the actor died, or its
+//! connection did) it asks another actor whose stream is open, or the next one to connect.
+//! Each request has a fresh random id; only the open one is answered.
 
 use jsae_proto::wire::pb;
 use tokio::sync::mpsc;
 
 use super::grpc::Input;
+use super::roster::Roster;
 
 /// The open evaluation request and the actors that could take it over.
 #[derive(Debug)]
 pub(super) struct Evaluation {
     episodes: u32,
     seed: u64,
-    /// Open policy streams of actors, by actor id.
-    streams: BTreeMap<u64, usize>,
     asked: Option<pb::EvalRequest>,
 }
 
@@ -26,7 +23,6 @@ impl Evaluation {
         Self {
             episodes,
             seed,
-            streams: BTreeMap::new(),
             asked: None,
         }
     }
@@ -38,32 +34,23 @@ impl Evaluation {
 
     /// The request to publish: to `actor` when its stream is open (or none is), else to an
     /// actor whose stream is.
-    pub(super) fn ask(&mut self, actor: u64) -> pb::EvalRequest {
-        let actor = if self.is_open(actor) {
+    pub(super) fn ask(&mut self, actor: u64, roster: &Roster) -> pb::EvalRequest {
+        let actor = if roster.is_open(actor) {
             actor
         } else {
-            self.any_open().unwrap_or(actor)
+            roster.any_open().unwrap_or(actor)
         };
         self.request(actor)
     }
 
-    /// An actor's policy stream opened or closed; a new request to publish when the asked
-    /// actor has no stream left and another actor has one.
-    pub(super) fn stream(&mut self, actor: u64, opened: bool) -> Option<pb::EvalRequest> {
-        let count = self.streams.entry(actor).or_default();
-        if opened {
-            *count += 1;
-        } else {
-            *count = count.saturating_sub(1);
-            if *count == 0 {
-                self.streams.remove(&actor);
-            }
-        }
+    /// The roster changed (a policy stream opened or closed); a new request to publish when
+    /// the asked actor has no stream left and another actor has one.
+    pub(super) fn roster_changed(&mut self, roster: &Roster) -> Option<pb::EvalRequest> {
         let asked = self.asked?;
-        if self.is_open(asked.actor_id) {
+        if roster.is_open(asked.actor_id) {
             return None;
         }
-        let other = self.any_open()?;
+        let other = roster.any_open()?;
         tracing::warn!(
             "the policy stream of actor {} closed before it reported its evaluation: asking \
              actor {other}",
@@ -82,14 +69,6 @@ impl Evaluation {
         self.asked = Some(request);
         request
     }
-
-    fn is_open(&self, actor: u64) -> bool {
-        self.streams.contains_key(&actor)
-    }
-
-    fn any_open(&self) -> Option<u64> {
-        self.streams.keys().next().copied()
-    }
 }
 
 /// An actor's open policy stream: announced to the training thread when made, and its end when
@@ -101,12 +80,17 @@ pub(super) struct OpenStream {
 }
 
 impl OpenStream {
-    /// Announces the stream; None when the training thread is gone.
-    pub(super) async fn announce(actor: u64, queue: &mpsc::Sender<Input>) -> Option<Self> {
+    /// Announces the stream of an actor whose rollouts deliver `rollout_steps` env steps
+    /// (0: it did not say); None when the training thread is gone.
+    pub(super) async fn announce(
+        actor: u64,
+        rollout_steps: u64,
+        queue: &mpsc::Sender<Input>,
+    ) -> Option<Self> {
         queue
             .send(Input::Stream {
                 actor,
-                opened: true,
+                opened: Some(rollout_steps),
             })
             .await
             .ok()?;
@@ -128,7 +112,7 @@ impl Drop for OpenStream {
             runtime.spawn(async move {
                 let closed = Input::Stream {
                     actor,
-                    opened: false,
+                    opened: None,
                 };
                 let _ = queue.send(closed).await;
             });
@@ -140,43 +124,62 @@ impl Drop for OpenStream {
 mod tests {
     use super::*;
 
+    /// Opens (`Some(steps)`) or closes a stream, then tells the evaluation.
+    fn stream(
+        e: &mut Evaluation,
+        r: &mut Roster,
+        actor: u64,
+        open: bool,
+    ) -> Option<pb::EvalRequest> {
+        if open {
+            r.open(actor, 1);
+        } else {
+            r.close(actor);
+        }
+        e.roster_changed(r)
+    }
+
     #[test]
     fn the_asked_actor_is_replaced_only_when_its_last_stream_closes() {
-        let mut e = Evaluation::new(3, 7);
-        assert_eq!(e.stream(4, true), None);
-        assert_eq!(e.stream(9, true), None);
-        assert_eq!(e.stream(9, true), None);
-        let first = e.ask(9);
+        let (mut e, mut r) = (Evaluation::new(3, 7), Roster::new(1, 1));
+        assert_eq!(stream(&mut e, &mut r, 4, true), None);
+        assert_eq!(stream(&mut e, &mut r, 9, true), None);
+        assert_eq!(stream(&mut e, &mut r, 9, true), None);
+        let first = e.ask(9, &r);
         assert_eq!((first.actor_id, first.episodes, first.seed), (9, 3, 7));
-        assert_eq!(e.stream(9, false), None, "actor 9 has another stream");
-        let second = e.stream(9, false).expect("actor 4 asked");
+        assert_eq!(
+            stream(&mut e, &mut r, 9, false),
+            None,
+            "actor 9 has another stream"
+        );
+        let second = stream(&mut e, &mut r, 9, false).expect("actor 4 asked");
         assert_eq!(second.actor_id, 4);
         assert_ne!(second.request_id, first.request_id);
         assert_eq!(e.open(), Some(second));
         // an actor coming back does not take the request from one that is alive
-        assert_eq!(e.stream(9, true), None);
+        assert_eq!(stream(&mut e, &mut r, 9, true), None);
     }
 
     #[test]
     fn with_no_actor_alive_the_next_one_to_connect_is_asked() {
-        let mut e = Evaluation::new(1, 0);
-        let first = e.ask(2);
+        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        let first = e.ask(2, &r);
         assert_eq!(first.actor_id, 2, "no stream open: the fragment's actor");
-        let second = e.stream(5, true).expect("actor 5 asked");
+        let second = stream(&mut e, &mut r, 5, true).expect("actor 5 asked");
         assert_eq!(second.actor_id, 5);
         // the asked actor reconnecting (same id) keeps its request
-        let mut e = Evaluation::new(1, 0);
-        let first = e.ask(2);
-        assert_eq!(e.stream(2, true), None);
+        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        let first = e.ask(2, &r);
+        assert_eq!(stream(&mut e, &mut r, 2, true), None);
         assert_eq!(e.open(), Some(first));
     }
 
     #[test]
     fn a_dead_actor_whose_fragment_reached_the_end_is_not_asked() {
-        let mut e = Evaluation::new(1, 0);
-        assert_eq!(e.stream(1, true), None);
-        assert_eq!(e.stream(3, true), None);
-        assert_eq!(e.stream(3, false), None);
-        assert_eq!(e.ask(3).actor_id, 1);
+        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        assert_eq!(stream(&mut e, &mut r, 1, true), None);
+        assert_eq!(stream(&mut e, &mut r, 3, true), None);
+        assert_eq!(stream(&mut e, &mut r, 3, false), None);
+        assert_eq!(e.ask(3, &r).actor_id, 1);
     }
 }

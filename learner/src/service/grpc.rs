@@ -36,8 +36,11 @@ pub(super) enum Input {
     Embedding(EmbeddingSnapshot),
     /// An evaluation report and the request it answers.
     Eval(EvalReport, u64),
-    /// An actor's policy stream opened or closed.
-    Stream { actor: u64, opened: bool },
+    /// An actor's policy stream opened (with the env steps of its rollouts, 0 if it did not
+    /// say) or closed (None).
+    Stream { actor: u64, opened: Option<u64> },
+    /// Time passes: an overdue round is closed (sent by a timer while the service runs).
+    Tick,
 }
 
 /// What the policy stream carries: the current snapshot, an evaluation request, the end.
@@ -167,12 +170,13 @@ impl pb::learner_server::Learner for LearnerService {
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
         let watch = request.into_inner();
-        // an actor's stream is counted while it is open, so that an actor that dies while
-        // asked for the evaluation is replaced
+        // an actor's stream is counted while it is open: the batch is one rollout of every
+        // actor present (`roster`), and an actor that dies while asked for the evaluation is
+        // replaced
         // (none when the training thread is gone: the run is over, and the stream still
         // brings the last snapshot and the end)
         let actor = if watch.evaluates {
-            OpenStream::announce(watch.actor_id, &self.queue).await
+            OpenStream::announce(watch.actor_id, watch.rollout_steps, &self.queue).await
         } else {
             None
         };

@@ -20,6 +20,7 @@
 
 mod evaluation;
 mod grpc;
+mod roster;
 mod training;
 
 use std::future::Future;
@@ -43,6 +44,8 @@ pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
 
 /// Messages queued between the service and the learner thread.
 const QUEUE: usize = 256;
+/// How often the learner thread looks for a round past its deadline.
+const TICK: Duration = Duration::from_millis(100);
 use training::LearnerLoop;
 pub use training::latest_checkpoint;
 
@@ -177,6 +180,19 @@ pub async fn serve(
             }
         });
     }
+    // the round clock's tick; a weak sender, so that the queue still closes when the
+    // service is gone
+    let ticks = queue_tx.downgrade();
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(TICK);
+        every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            every.tick().await;
+            let Some(queue) = ticks.upgrade() else { break };
+            // a full queue has work enough: the tick is not needed then
+            let _ = queue.try_send(Input::Tick);
+        }
+    });
     drop(queue_tx);
     let run = LearnerLoop {
         config,

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
 use jsae_proto::settings::TrainConfig;
@@ -17,7 +17,10 @@ use tokio::sync::{mpsc, watch};
 
 use super::evaluation::Evaluation;
 use super::grpc::{Input, PolicyState};
-use crate::{Ingested, Learner, LoggedPurchases, MetricsSink, Summary, update_scalars};
+use super::roster::{Roster, RoundClock};
+use crate::{
+    Ingested, Learner, LoggedPurchases, MetricsSink, Summary, UpdateReport, update_scalars,
+};
 
 /// The latest policy checkpoint of a run directory, if any.
 pub fn latest_checkpoint(out: &RunDir) -> Option<PolicySnapshot> {
@@ -65,6 +68,26 @@ impl LearnerLoop {
         Ok(())
     }
 
+    /// Records an update: the checkpoint, then its metrics row (a stop between them leaves a
+    /// row missing, never the same update twice), the log line and the Prometheus families.
+    fn record_update(&mut self, report: UpdateReport) -> anyhow::Result<()> {
+        let wall = self.started.elapsed().as_secs_f64();
+        let row = update_scalars(&report.metrics, wall, self.embedding.as_ref());
+        self.publish_snapshot(report.snapshot)?;
+        self.metrics.record(&row)?;
+        tracing::info!(
+            "update {}: {} env steps ({} in the batch), return {:.3}, lag {:.2}",
+            report.metrics.update,
+            report.metrics.env_steps,
+            report.metrics.batch_steps,
+            report.metrics.return_mean.unwrap_or(f64::NAN),
+            report.metrics.policy_lag_mean
+        );
+        self.telemetry
+            .observe_update(report.metrics.policy_lag_mean);
+        Ok(())
+    }
+
     pub(super) fn run(mut self, mut queue: mpsc::Receiver<Input>) -> anyhow::Result<Summary> {
         if self.fresh {
             for note in self.learner.learn_from_logs(self.logged.as_deref())? {
@@ -75,37 +98,82 @@ impl LearnerLoop {
         self.publish_snapshot(first)?;
         let mut evaluation =
             Evaluation::new(self.config.eval_episodes as u32, self.config.eval_seed());
+        let mut roster = Roster::new(
+            self.config.round_steps(),
+            (self.config.envs_per_actor * self.config.rollout_len) as u64,
+        );
+        // half the actors' own floor: the learner gives up on a silent actor before the
+        // others give up waiting for the round's update (actor/src/pacing.rs)
+        let mut clock = RoundClock::new(Duration::from_millis(self.config.policy_wait_ms) / 2);
         while let Some(input) = queue.blocking_recv() {
             match input {
                 Input::Embedding(s) => self.embedding = Some(s),
                 Input::Stream { actor, opened } => {
-                    if let Some(request) = evaluation.stream(actor, opened) {
+                    match opened {
+                        Some(steps) => roster.open(actor, steps),
+                        None => roster.close(actor),
+                    }
+                    self.telemetry.observe_actors(roster.counts());
+                    if let Some(request) = evaluation.roster_changed(&roster) {
                         self.publish.send_modify(|s| s.evaluate = Some(request));
+                    }
+                    if evaluation.open().is_none()
+                        && let Some(report) = self.learner.set_batch_steps(roster.batch_steps())?
+                    {
+                        roster.new_round();
+                        clock.completed(Instant::now());
+                        self.record_update(report)?;
+                    }
+                }
+                Input::Tick => {
+                    let now = Instant::now();
+                    if evaluation.open().is_none()
+                        && clock.overdue(now)
+                        && roster.waits_on_someone()
+                    {
+                        let missing = roster.close_overdue();
+                        tracing::info!(
+                            "a round waited {:.1} s: updating on its {} env steps without actors \
+                             {missing:?}, left out of the batch until they send again",
+                            clock.deadline().as_secs_f64(),
+                            self.learner.pending_steps()
+                        );
+                        clock.reset();
+                        self.learner.set_batch_steps(roster.batch_steps())?;
+                        if let Some(report) = self.learner.close_round()? {
+                            self.record_update(report)?;
+                        }
+                        self.telemetry.observe_actors(roster.counts());
                     }
                 }
                 Input::Fragment(f) if evaluation.open().is_none() => {
-                    let actor_id = f.actor_id;
+                    let (actor_id, len) = (f.actor_id, f.len());
+                    let now = Instant::now();
+                    self.telemetry.observe_actor_steps(actor_id, len as u64);
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
-                            let wall = self.started.elapsed().as_secs_f64();
-                            let embedding = self.embedding.as_ref();
-                            let row = update_scalars(&report.metrics, wall, embedding);
-                            // the checkpoint before the row: a stop between them leaves a
-                            // row missing, never the same update twice
-                            self.publish_snapshot(report.snapshot)?;
-                            self.metrics.record(&row)?;
-                            tracing::info!(
-                                "update {}: {} env steps, return {:.3}, lag {:.2}",
-                                report.metrics.update,
-                                report.metrics.env_steps,
-                                report.metrics.return_mean.unwrap_or(f64::NAN),
-                                report.metrics.policy_lag_mean
-                            );
-                            self.telemetry
-                                .observe_update(report.metrics.policy_lag_mean);
+                            roster.new_round();
+                            clock.completed(now);
+                            self.record_update(*report)?;
                         }
-                        Ok(_) => {}
+                        Ok(Ingested::Buffered) => {
+                            if self.learner.pending_steps() == len {
+                                // the round's first fragment (or the first of a newer
+                                // embedding, which emptied the round)
+                                roster.new_round();
+                                clock.reset();
+                            }
+                            roster.delivered(actor_id);
+                            clock.buffered(now);
+                        }
+                        Ok(_) => roster.delivered(actor_id),
                         Err(e) => tracing::warn!("fragment refused: {e}"),
+                    }
+                    // an absent actor that sent again is back in the batch
+                    if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
+                        roster.new_round();
+                        clock.completed(now);
+                        self.record_update(report)?;
                     }
                     self.telemetry.observe_fragment(&LearnerSample {
                         env_steps: self.learner.env_steps(),
@@ -116,7 +184,7 @@ impl LearnerLoop {
                         queue_depth: queue.len(),
                     });
                     if self.learner.env_steps() >= self.config.env_steps {
-                        let request = evaluation.ask(actor_id);
+                        let request = evaluation.ask(actor_id, &roster);
                         tracing::info!(
                             "{} env steps reached: asking actor {} for {} evaluation episodes",
                             self.learner.env_steps(),

@@ -101,6 +101,14 @@ pub struct PpoConfig {
     pub normalize_obs: bool,
     /// Fragments produced by a policy more than this many versions old are dropped.
     pub max_policy_lag: u64,
+    /// The most env steps one PPO update takes (None: a whole batch). A larger batch (one
+    /// rollout of every actor present) is optimised in consecutive passes over parts of about
+    /// this size, in the order the fragments arrived, each a full update (every epoch, its
+    /// own advantage normalisation) starting from the last, before the batch's one policy is
+    /// published: as many clipped steps per env step as with one actor, whatever the actor
+    /// count. The later parts' ratios are taken against the log-probs their actors acted
+    /// with (PPO's clip on the behaviour policy).
+    pub max_update_steps: Option<usize>,
     /// Which implementation runs the update: `fused` (host loss, gradients and Adam over
     /// GEMMs; the default) or `burn` (burn's autodiff graph; the reference, slower).
     pub update: UpdatePath,
@@ -151,6 +159,7 @@ impl Default for PpoConfig {
             max_abs_reward: DEFAULT_MAX_ABS_REWARD,
             normalize_obs: false,
             max_policy_lag: 4,
+            max_update_steps: None,
             update: UpdatePath::Fused,
         }
     }

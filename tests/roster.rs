@@ -1,0 +1,99 @@
+//! The learner counts its actors by their open policy streams, whatever the settings say:
+//! two actors of a run whose settings say one are one batch of two rollouts (lag 0, nothing
+//! dropped), and an actor that is connected but silent holds no round past its deadline.
+
+use jsae_actor::service::ActorExit;
+use jsae_learner::MetricsTable;
+use jsae_proto::run_dir::RunDir;
+use jsae_proto::settings::{Algo, EnvName};
+use jsae_tests::services::*;
+
+/// Env steps between consecutive metrics rows.
+fn batches(out: &std::path::Path) -> Vec<u64> {
+    let table = MetricsTable::read(&RunDir::new(out).metrics_csv()).expect("metrics.csv");
+    let steps: Vec<u64> = table
+        .column("env_steps")
+        .into_iter()
+        .flatten()
+        .map(|v| v as u64)
+        .collect();
+    steps.windows(2).map(|w| w[1] - w[0]).collect()
+}
+
+fn lag_max(out: &std::path::Path) -> f64 {
+    let table = MetricsTable::read(&RunDir::new(out).metrics_csv()).expect("metrics.csv");
+    table
+        .column("policy_lag_max")
+        .into_iter()
+        .flatten()
+        .fold(0.0, f64::max)
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn two_actors_of_a_one_actor_run_make_one_batch_of_two_rollouts_at_lag_zero() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "roster-by-hand");
+    c.actors = 1; // what a user launching actors by hand leaves as it is
+    c.env_steps = 6_144;
+    // a round's deadline (half of this) far beyond a rollout even on a loaded machine: both
+    // actors are alive, so every round must wait for both
+    c.policy_wait_ms = 10_000;
+    let rollout = (c.envs_per_actor * c.rollout_len) as u64;
+    let learner = start_learner(&c, None).await;
+    let a = start_actor(&c, 1, None, &learner.url);
+    let b = start_actor(&c, 2, None, &learner.url);
+    let (ra, rb) = (a.join().await.expect("a"), b.join().await.expect("b"));
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    assert_eq!(
+        (ra.exit, rb.exit),
+        (ActorExit::Finished, ActorExit::Finished)
+    );
+    assert_eq!(summary.dropped_lag, 0, "{summary:?}");
+    assert_eq!(
+        lag_max(&c.out),
+        0.0,
+        "every fragment answered by its own update"
+    );
+    let sizes = batches(&c.out);
+    // the first round may close before the second actor's stream is open
+    let doubled = sizes.iter().skip(1).filter(|&&s| s == 2 * rollout).count();
+    assert!(
+        doubled + 1 >= sizes.len(),
+        "batches of two rollouts ({}): {sizes:?}",
+        2 * rollout
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_connected_actor_that_sends_nothing_holds_no_round_past_its_deadline() {
+    let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "roster-silent");
+    c.env_steps = 4_096;
+    c.policy_wait_ms = 200;
+    let learner = start_learner(&c, None).await;
+    // actor 77 says it is there and never sends a fragment
+    let silent = watch_policy(&learner.url, 77).await;
+    let a = start_actor(&c, 1, None, &learner.url);
+    let ra = tokio::time::timeout(std::time::Duration::from_secs(120), a.join())
+        .await
+        .expect("the run did not wait on the silent actor for good")
+        .expect("actor 1");
+    let summary = learner
+        .join()
+        .await
+        .expect("learner")
+        .expect("the run ended");
+    drop(silent);
+    assert_eq!(ra.exit, ActorExit::Finished);
+    assert!(summary.env_steps >= c.env_steps, "{summary:?}");
+    assert_eq!(summary.dropped_lag, 0, "{summary:?}");
+    // after the first round's deadline the silent actor is out of the batch: one rollout each
+    let rollout = (c.envs_per_actor * c.rollout_len) as u64;
+    let sizes = batches(&c.out);
+    assert!(
+        sizes.iter().skip(1).all(|&s| s == rollout),
+        "one rollout per batch once the silent actor is left out: {sizes:?}"
+    );
+}
