@@ -71,7 +71,7 @@ async fn two_actors_of_a_one_actor_run_make_one_batch_of_two_rollouts_at_lag_zer
 async fn a_connected_actor_that_sends_nothing_holds_no_round_past_its_deadline() {
     let mut c = config(EnvName::GridworldDiscrete, Algo::Ppo, "roster-silent");
     c.env_steps = 4_096;
-    c.policy_wait_ms = 200;
+    c.policy_wait_ms = 1_000;
     let learner = start_learner(&c, None).await;
     // actor 77 says it is there and never sends a fragment
     let silent = watch_policy(&learner.url, 77).await;

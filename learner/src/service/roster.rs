@@ -12,7 +12,9 @@
 //! each actor that delivered nothing to it is marked absent, out of the batch, until its next
 //! fragment arrives. The deadline's floor is half the actors' own (`policy_wait_ms`), so the
 //! learner closes such a round before the actors that did deliver give up waiting for its
-//! update and send more under the same version. With no actor present (none announced itself, or all are absent) the
+//! update and send more under the same version; where they still do (a loaded machine) and
+//! their extra rollouts fill the round past its deadline, the silent actors are left out the
+//! same way (`training::round_completed`). With no actor present (none announced itself, or all are absent) the
 //! batch is the settings' `actors x envs_per_actor x rollout_len`.
 
 use std::collections::{BTreeMap, BTreeSet};

@@ -22,6 +22,23 @@ use crate::{
     Ingested, Learner, LoggedPurchases, MetricsSink, Summary, UpdateReport, update_scalars,
 };
 
+/// A round reached its batch at `now`. Past its deadline (the actors that did deliver sent
+/// more rollouts while one stayed silent), the actors that delivered nothing to it are left
+/// out as at the deadline itself, and its spread is not measured.
+fn round_completed(roster: &mut Roster, clock: &mut RoundClock, now: Instant) {
+    if clock.overdue(now) && roster.waits_on_someone() {
+        let missing = roster.close_overdue();
+        tracing::info!(
+            "a round filled past its deadline without actors {missing:?}: left out of the \
+             batch until they send again"
+        );
+        clock.reset();
+    } else {
+        roster.new_round();
+        clock.completed(now);
+    }
+}
+
 /// The latest policy checkpoint of a run directory, if any.
 pub fn latest_checkpoint(out: &RunDir) -> Option<PolicySnapshot> {
     let (version, bytes) = out.checkpoints().read_latest(Weights::Policy)?;
@@ -120,8 +137,7 @@ impl LearnerLoop {
                     if evaluation.open().is_none()
                         && let Some(report) = self.learner.set_batch_steps(roster.batch_steps())?
                     {
-                        roster.new_round();
-                        clock.completed(Instant::now());
+                        round_completed(&mut roster, &mut clock, Instant::now());
                         self.record_update(report)?;
                     }
                 }
@@ -152,8 +168,7 @@ impl LearnerLoop {
                     self.telemetry.observe_actor_steps(actor_id, len as u64);
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
-                            roster.new_round();
-                            clock.completed(now);
+                            round_completed(&mut roster, &mut clock, now);
                             self.record_update(*report)?;
                         }
                         Ok(Ingested::Buffered) => {
@@ -171,8 +186,7 @@ impl LearnerLoop {
                     }
                     // an absent actor that sent again is back in the batch
                     if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
-                        roster.new_round();
-                        clock.completed(now);
+                        round_completed(&mut roster, &mut clock, now);
                         self.record_update(report)?;
                     }
                     self.telemetry.observe_fragment(&LearnerSample {
