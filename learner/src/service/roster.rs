@@ -14,8 +14,8 @@
 //! learner closes such a round before the actors that did deliver give up waiting for its
 //! update and send more under the same version; where they still do (a loaded machine) and
 //! their extra rollouts fill the round past its deadline, the silent actors are left out the
-//! same way (`training::round_completed`). With no actor present (none announced itself, or all are absent) the
-//! batch is the settings' `actors x envs_per_actor x rollout_len`.
+//! same way (`training::round_completed`). With no actor present (none announced itself, or
+//! all are absent) the batch is the settings' `actors x envs_per_actor x rollout_len`.
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
