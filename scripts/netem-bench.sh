@@ -11,6 +11,10 @@
 # "netem-bench: SKIPPED: why" and exits 0 where it cannot run. The namespace, its veth pair
 # (10.78.0.1/24 on the host, 10.78.0.2 inside) and the run directories are removed at the
 # end, also on failure. No traffic leaves the machine: the link exists only between the two.
+# Where the kernel has no netem qdisc (a kernel without sch_netem, as on the Firecracker VMs
+# this project's machines are), the actors stay on loopback and reach the learner through
+# scripts/python/delay_proxy.py, which delays every chunk of the TCP stream by half the round
+# trip each way (the table's `where` then says `proxy`).
 set -euo pipefail
 actors="${1:-2}"
 steps="${2:-204800}"
@@ -41,8 +45,21 @@ ip netns exec "$ns" ip addr add 10.78.0.2/24 dev "$ns_if"
 ip netns exec "$ns" ip link set "$ns_if" up
 ip netns exec "$ns" ip link set lo up
 
+# netem, or the userspace proxy where the kernel has no netem qdisc
+mode=netns
+if ! tc qdisc replace dev "$host_if" root netem delay 0ms 2>/dev/null; then
+    mode=proxy
+    echo "netem-bench: this kernel has no netem qdisc: the delay comes from scripts/python/delay_proxy.py" >&2
+fi
+proxy_rtt=0
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+
 # the delay: half the round trip on each end of the link
 delay() {
+    if [[ $mode == proxy ]]; then
+        proxy_rtt="$1"
+        return
+    fi
     local half
     half="$(python3 -c "print($1 / 2)")"
     tc qdisc replace dev "$host_if" root netem delay "${half}ms"
@@ -82,6 +99,15 @@ run() {
         sleep 0.1
     done
     [[ -n $url ]] || { cat "$out/learner.log" >&2; echo "netem-bench: the learner did not start" >&2; exit 1; }
+    if [[ $where == proxy ]]; then
+        local port
+        port="$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+        python3 "$here/python/delay_proxy.py" "$port" 127.0.0.1 "${url##*:}" "$proxy_rtt" \
+            >"$out/proxy.log" 2>&1 &
+        pids+=($!)
+        for _ in $(seq 100); do grep -q ready "$out/proxy.log" && break; sleep 0.05; done
+        url="http://127.0.0.1:$port"
+    fi
     for id in $(seq 1 "$actors"); do
         if [[ $where == netns ]]; then
             ip netns exec "$ns" "$jsae" actor --learner "$url" "${common[@]}" --id "$id" \
@@ -102,10 +128,10 @@ for rollouts in 1 2; do
     printf '%-9s %8s %9s %12s %10s %6s %8s %9s\n' loopback - "$rollouts" "$base" 1.00 "$lag" "$dl" "$de"
     for rtt in 0 5 20 50; do
         delay "$rtt"
-        run netns "$rollouts" >"$work/result"
+        run "$mode" "$rollouts" >"$work/result"
         read -r rate lag dl de <"$work/result"
         ratio="$(python3 -c "print(f'{$rate / max($base, 1):.2f}')")"
-        printf '%-9s %8s %9s %12s %10s %6s %8s %9s\n' netns "$rtt" "$rollouts" "$rate" "$ratio" "$lag" "$dl" "$de"
+        printf '%-9s %8s %9s %12s %10s %6s %8s %9s\n' "$mode" "$rtt" "$rollouts" "$rate" "$ratio" "$lag" "$dl" "$de"
     done
 done
-echo "HalfCheetah PPO, $actors actors x 16 envs (the batch one rollout of every actor), $steps env steps a run; rtt: the round trip tc netem adds between the actors' namespace and the learner; env-steps/s between the first and the last update"
+echo "HalfCheetah PPO, $actors actors x 16 envs (the batch one rollout of every actor), $steps env steps a run; rtt: the round trip added between the actors and the learner ($mode: netns is tc netem on the namespace's link, proxy the delaying TCP proxy); env-steps/s between the first and the last update"
