@@ -141,7 +141,10 @@ mod tests {
 
     #[test]
     fn the_asked_actor_is_replaced_only_when_its_last_stream_closes() {
-        let (mut e, mut r) = (Evaluation::new(3, 7), Roster::new(1, 1));
+        let (mut e, mut r) = (
+            Evaluation::new(3, 7),
+            Roster::new(1, 1, std::time::Duration::ZERO),
+        );
         assert_eq!(stream(&mut e, &mut r, 4, true), None);
         assert_eq!(stream(&mut e, &mut r, 9, true), None);
         assert_eq!(stream(&mut e, &mut r, 9, true), None);
@@ -162,13 +165,19 @@ mod tests {
 
     #[test]
     fn with_no_actor_alive_the_next_one_to_connect_is_asked() {
-        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        let (mut e, mut r) = (
+            Evaluation::new(1, 0),
+            Roster::new(1, 1, std::time::Duration::ZERO),
+        );
         let first = e.ask(2, &r);
         assert_eq!(first.actor_id, 2, "no stream open: the fragment's actor");
         let second = stream(&mut e, &mut r, 5, true).expect("actor 5 asked");
         assert_eq!(second.actor_id, 5);
         // the asked actor reconnecting (same id) keeps its request
-        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        let (mut e, mut r) = (
+            Evaluation::new(1, 0),
+            Roster::new(1, 1, std::time::Duration::ZERO),
+        );
         let first = e.ask(2, &r);
         assert_eq!(stream(&mut e, &mut r, 2, true), None);
         assert_eq!(e.open(), Some(first));
@@ -176,7 +185,10 @@ mod tests {
 
     #[test]
     fn a_dead_actor_whose_fragment_reached_the_end_is_not_asked() {
-        let (mut e, mut r) = (Evaluation::new(1, 0), Roster::new(1, 1));
+        let (mut e, mut r) = (
+            Evaluation::new(1, 0),
+            Roster::new(1, 1, std::time::Duration::ZERO),
+        );
         assert_eq!(stream(&mut e, &mut r, 1, true), None);
         assert_eq!(stream(&mut e, &mut r, 3, true), None);
         assert_eq!(stream(&mut e, &mut r, 3, false), None);

@@ -37,24 +37,67 @@ struct Member {
     absent: bool,
 }
 
-/// The actors whose policy streams are open, and who delivered to the round being gathered.
+/// The actors whose policy streams are open, who delivered to the round being gathered, and
+/// the round's clock.
 #[derive(Debug)]
 pub(super) struct Roster {
     members: BTreeMap<u64, Member>,
     /// The batch while no actor is present, and an actor's rollout when it does not say.
     fallback: (usize, u64),
     delivered: BTreeSet<u64>,
+    clock: RoundClock,
 }
 
 impl Roster {
     /// `fallback_batch`: the batch with no actor present; `default_rollout`: the rollout of
-    /// an actor that does not say (`rollout_steps` 0).
-    pub(super) fn new(fallback_batch: usize, default_rollout: u64) -> Self {
+    /// an actor that does not say (`rollout_steps` 0); `floor`: the least a round waits for
+    /// its silent actors.
+    pub(super) fn new(fallback_batch: usize, default_rollout: u64, floor: Duration) -> Self {
         Self {
             members: BTreeMap::new(),
             fallback: (fallback_batch.max(1), default_rollout.max(1)),
             delivered: BTreeSet::new(),
+            clock: RoundClock::new(floor),
         }
+    }
+
+    /// How long the round being gathered may wait for its last fragment.
+    pub(super) fn deadline(&self) -> Duration {
+        self.clock.deadline()
+    }
+
+    /// A fragment of `actor` was buffered at `now`; `first`: it is the only one buffered (a
+    /// new round, or the first of a newer embedding, which emptied the round).
+    pub(super) fn buffered(&mut self, actor: u64, first: bool, now: Instant) {
+        if first {
+            self.new_round();
+            self.clock.reset();
+        }
+        self.delivered(actor);
+        self.clock.buffered(now);
+    }
+
+    /// The round reached its batch at `now`. Past its deadline (the actors that did deliver
+    /// sent more rollouts while one stayed silent) the actors that delivered nothing to it
+    /// are left out as at the deadline itself (their ids), and its spread is not measured.
+    pub(super) fn completed(&mut self, now: Instant) -> Vec<u64> {
+        if let Some(missing) = self.overdue(now) {
+            return missing;
+        }
+        self.new_round();
+        self.clock.completed(now);
+        Vec::new()
+    }
+
+    /// At `now`, whether the round is past its deadline waiting on an actor present: then the
+    /// actors that delivered nothing to it are left out until their next fragment (their ids)
+    /// and a new round starts; the caller updates on what is buffered.
+    pub(super) fn overdue(&mut self, now: Instant) -> Option<Vec<u64>> {
+        if !(self.clock.overdue(now) && self.waits_on_someone()) {
+            return None;
+        }
+        self.clock.reset();
+        Some(self.close_overdue())
     }
 
     /// An actor's policy stream opened; `rollout_steps` as it announced them.
@@ -117,7 +160,8 @@ impl Roster {
         }
     }
 
-    /// A fragment of `actor` joined the round: the actor is present again.
+    /// A fragment of `actor` reached the round (buffered or dropped): the actor is present
+    /// again.
     pub(super) fn delivered(&mut self, actor: u64) {
         self.delivered.insert(actor);
         if let Some(m) = self.members.get_mut(&actor) {
@@ -126,13 +170,13 @@ impl Roster {
     }
 
     /// The round was closed complete, or emptied (a newer embedding): a new one starts.
-    pub(super) fn new_round(&mut self) {
+    fn new_round(&mut self) {
         self.delivered.clear();
     }
 
     /// Whether the round waits on an actor present that has delivered nothing to it (with
     /// none present, a round is the settings' batch and has no one to wait for).
-    pub(super) fn waits_on_someone(&self) -> bool {
+    fn waits_on_someone(&self) -> bool {
         self.members
             .iter()
             .any(|(a, m)| !m.absent && !self.delivered.contains(a))
@@ -140,7 +184,7 @@ impl Roster {
 
     /// The round closed at its deadline: the actors that delivered nothing to it are absent
     /// until their next fragment; their ids.
-    pub(super) fn close_overdue(&mut self) -> Vec<u64> {
+    fn close_overdue(&mut self) -> Vec<u64> {
         let mut missing = Vec::new();
         for (&actor, m) in &mut self.members {
             if !m.absent && !self.delivered.contains(&actor) {
@@ -155,7 +199,7 @@ impl Roster {
 
 /// When the round being gathered started, and how long rounds take to fill.
 #[derive(Debug, Clone)]
-pub(super) struct RoundClock {
+struct RoundClock {
     floor: Duration,
     /// The slowest recent spread, decayed by a tenth at each new one.
     slowest: Duration,
@@ -164,7 +208,7 @@ pub(super) struct RoundClock {
 
 impl RoundClock {
     /// A clock whose deadline is never below `floor`.
-    pub(super) fn new(floor: Duration) -> Self {
+    fn new(floor: Duration) -> Self {
         Self {
             floor,
             slowest: Duration::ZERO,
@@ -173,17 +217,17 @@ impl RoundClock {
     }
 
     /// How long a round may wait for its last fragment after its first.
-    pub(super) fn deadline(&self) -> Duration {
+    fn deadline(&self) -> Duration {
         self.floor.max(self.slowest * DEADLINE_FACTOR)
     }
 
     /// A fragment is buffered at `now` (the round's first starts the clock).
-    pub(super) fn buffered(&mut self, now: Instant) {
+    fn buffered(&mut self, now: Instant) {
         self.first.get_or_insert(now);
     }
 
     /// The round was completed at `now`: its spread is measured.
-    pub(super) fn completed(&mut self, now: Instant) {
+    fn completed(&mut self, now: Instant) {
         if let Some(first) = self.first.take() {
             let spread = now.duration_since(first);
             self.slowest = spread.max(self.slowest.mul_f64(0.9));
@@ -191,12 +235,12 @@ impl RoundClock {
     }
 
     /// Nothing is buffered (the round closed overdue, or was emptied).
-    pub(super) fn reset(&mut self) {
+    fn reset(&mut self) {
         self.first = None;
     }
 
     /// Whether the round has waited past its deadline.
-    pub(super) fn overdue(&self, now: Instant) -> bool {
+    fn overdue(&self, now: Instant) -> bool {
         self.first
             .is_some_and(|first| now.duration_since(first) >= self.deadline())
     }
@@ -208,7 +252,7 @@ mod tests {
 
     #[test]
     fn the_batch_is_one_rollout_of_every_actor_present() {
-        let mut r = Roster::new(2048, 512);
+        let mut r = Roster::new(2048, 512, Duration::ZERO);
         assert_eq!(r.batch_steps(), 2048, "nobody yet: the settings' batch");
         assert!(!r.waits_on_someone());
         r.open(1, 1000);
@@ -230,7 +274,7 @@ mod tests {
 
     #[test]
     fn an_actor_silent_through_an_overdue_round_is_absent_until_it_delivers() {
-        let mut r = Roster::new(2048, 100);
+        let mut r = Roster::new(2048, 100, Duration::ZERO);
         r.open(1, 100);
         r.open(2, 100);
         r.delivered(1);

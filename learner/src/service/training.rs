@@ -17,25 +17,19 @@ use tokio::sync::{mpsc, watch};
 
 use super::evaluation::Evaluation;
 use super::grpc::{Input, PolicyState};
-use super::roster::{Roster, RoundClock};
+use super::roster::Roster;
 use crate::{
     Ingested, Learner, LoggedPurchases, MetricsSink, Summary, UpdateReport, update_scalars,
 };
 
-/// A round reached its batch at `now`. Past its deadline (the actors that did deliver sent
-/// more rollouts while one stayed silent), the actors that delivered nothing to it are left
-/// out as at the deadline itself, and its spread is not measured.
-fn round_completed(roster: &mut Roster, clock: &mut RoundClock, now: Instant) {
-    if clock.overdue(now) && roster.waits_on_someone() {
-        let missing = roster.close_overdue();
+/// The round reached its batch (logged when its silent actors were left out).
+fn round_completed(roster: &mut Roster, now: Instant) {
+    let missing = roster.completed(now);
+    if !missing.is_empty() {
         tracing::info!(
-            "a round filled past its deadline without actors {missing:?}: left out of the \
-             batch until they send again"
+            "a round filled past its deadline without actors {missing:?}: left out of the batch \
+             until they send again"
         );
-        clock.reset();
-    } else {
-        roster.new_round();
-        clock.completed(now);
     }
 }
 
@@ -85,6 +79,16 @@ impl LearnerLoop {
         Ok(())
     }
 
+    /// Sets the learner's batch to the roster's; records the update when what is buffered
+    /// already makes it.
+    fn resize_batch(&mut self, roster: &mut Roster, now: Instant) -> anyhow::Result<()> {
+        if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
+            round_completed(roster, now);
+            self.record_update(report)?;
+        }
+        Ok(())
+    }
+
     /// Records an update: the checkpoint, then its metrics row (a stop between them leaves a
     /// row missing, never the same update twice), the log line and the Prometheus families.
     fn record_update(&mut self, report: UpdateReport) -> anyhow::Result<()> {
@@ -115,13 +119,13 @@ impl LearnerLoop {
         self.publish_snapshot(first)?;
         let mut evaluation =
             Evaluation::new(self.config.eval_episodes as u32, self.config.eval_seed());
+        // the deadline's floor is half the actors' own: the learner gives up on a silent actor
+        // before the others give up waiting for the round's update (actor/src/pacing.rs)
         let mut roster = Roster::new(
             self.config.round_steps(),
             (self.config.envs_per_actor * self.config.rollout_len) as u64,
+            Duration::from_millis(self.config.policy_wait_ms) / 2,
         );
-        // half the actors' own floor: the learner gives up on a silent actor before the
-        // others give up waiting for the round's update (actor/src/pacing.rs)
-        let mut clock = RoundClock::new(Duration::from_millis(self.config.policy_wait_ms) / 2);
         while let Some(input) = queue.blocking_recv() {
             match input {
                 Input::Embedding(s) => self.embedding = Some(s),
@@ -134,27 +138,21 @@ impl LearnerLoop {
                     if let Some(request) = evaluation.roster_changed(&roster) {
                         self.publish.send_modify(|s| s.evaluate = Some(request));
                     }
-                    if evaluation.open().is_none()
-                        && let Some(report) = self.learner.set_batch_steps(roster.batch_steps())?
-                    {
-                        round_completed(&mut roster, &mut clock, Instant::now());
-                        self.record_update(report)?;
+                    if evaluation.open().is_none() {
+                        self.resize_batch(&mut roster, Instant::now())?;
                     }
                 }
                 Input::Tick => {
-                    let now = Instant::now();
+                    let deadline = roster.deadline();
                     if evaluation.open().is_none()
-                        && clock.overdue(now)
-                        && roster.waits_on_someone()
+                        && let Some(missing) = roster.overdue(Instant::now())
                     {
-                        let missing = roster.close_overdue();
                         tracing::info!(
                             "a round waited {:.1} s: updating on its {} env steps without actors \
                              {missing:?}, left out of the batch until they send again",
-                            clock.deadline().as_secs_f64(),
+                            deadline.as_secs_f64(),
                             self.learner.pending_steps()
                         );
-                        clock.reset();
                         self.learner.set_batch_steps(roster.batch_steps())?;
                         if let Some(report) = self.learner.close_round()? {
                             self.record_update(report)?;
@@ -168,27 +166,19 @@ impl LearnerLoop {
                     self.telemetry.observe_actor_steps(actor_id, len as u64);
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
-                            round_completed(&mut roster, &mut clock, now);
+                            round_completed(&mut roster, now);
                             self.record_update(*report)?;
                         }
                         Ok(Ingested::Buffered) => {
-                            if self.learner.pending_steps() == len {
-                                // the round's first fragment (or the first of a newer
-                                // embedding, which emptied the round)
-                                roster.new_round();
-                                clock.reset();
-                            }
-                            roster.delivered(actor_id);
-                            clock.buffered(now);
+                            let first = self.learner.pending_steps() == len;
+                            roster.buffered(actor_id, first, now);
                         }
+                        // a dropped fragment still shows its actor alive
                         Ok(_) => roster.delivered(actor_id),
                         Err(e) => tracing::warn!("fragment refused: {e}"),
                     }
                     // an absent actor that sent again is back in the batch
-                    if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
-                        round_completed(&mut roster, &mut clock, now);
-                        self.record_update(report)?;
-                    }
+                    self.resize_batch(&mut roster, now)?;
                     self.telemetry.observe_fragment(&LearnerSample {
                         env_steps: self.learner.env_steps(),
                         updates: self.learner.updates(),
