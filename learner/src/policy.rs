@@ -223,6 +223,22 @@ impl Policy {
         self.entropy_log_std_max
     }
 
+    /// Holds a Gaussian policy's log std at most `max` (the entropy bonus's falling cap,
+    /// `PpoConfig::entropy_log_std_cap_at`): the parameter is clamped to it and the bonus
+    /// stops there from now on. A categorical policy has no std to hold.
+    pub(crate) fn hold_log_std(&mut self, max: f32) {
+        if !matches!(self.head, PolicyHead::Gaussian { .. }) {
+            return;
+        }
+        self.entropy_log_std_max = self.entropy_log_std_max.min(max);
+        let held: Vec<f32> = nn::to_vec(self.net.log_std.val())
+            .into_iter()
+            .map(|v| v.min(max))
+            .collect();
+        self.net.log_std = self.net.log_std.clone().map(|old| nn::replaced(old, &held));
+        self.host_actor = OnceLock::new();
+    }
+
     /// The weights.
     pub fn net(&self) -> &PolicyNet {
         &self.net

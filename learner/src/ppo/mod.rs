@@ -76,6 +76,8 @@ pub struct Learner {
     /// The env steps credited to each actor incarnation's claims.
     credits: StepCredits,
     embedding_version: u64,
+    /// The embedding version of the last update's batch (0: no update yet in this process).
+    trained_embedding_version: u64,
     pending: Vec<RolloutFragment>,
     pending_steps: usize,
     batch_lag: LagStats,
@@ -116,6 +118,7 @@ impl Learner {
             total_env_steps,
             credits: StepCredits::new(0),
             embedding_version: 0,
+            trained_embedding_version: 0,
             pending: Vec::new(),
             pending_steps: 0,
             batch_lag: LagStats::default(),
@@ -188,6 +191,13 @@ impl Learner {
     /// without training state: the run's actors start again from zero).
     pub fn count_steps_from(&mut self, steps: u64) {
         self.credits.count_from(steps);
+    }
+
+    /// The embedding version the current policy's last update was trained on (0: no update
+    /// yet in this process). The newest one seen ([`Self::embedding_version`]) can be newer:
+    /// its fragments wait for the next batch.
+    pub fn trained_embedding_version(&self) -> u64 {
+        self.trained_embedding_version
     }
 
     /// The newest embedding version of the fragments (0: none yet, or no embedding).
@@ -339,11 +349,25 @@ impl Learner {
         self.config.lr * frac.max(1e-3)
     }
 
+    /// The entropy bonus's cap for the update of the batch now buffered (it falls over the
+    /// run's last part: `PpoConfig::entropy_log_std_cap_at`); None without a step budget.
+    fn entropy_log_std_cap(&self) -> Option<f32> {
+        if self.total_env_steps == 0 {
+            return None;
+        }
+        let progress = self.env_steps() as f64 / self.total_env_steps as f64;
+        self.config.entropy_log_std_cap_at(progress.min(1.0))
+    }
+
     fn update(&mut self) -> Result<UpdateReport, LearnerError> {
         let fragments = std::mem::take(&mut self.pending);
         let batch_steps = self.pending_steps;
         self.pending_steps = 0;
         let lr = self.learning_rate();
+        let std_cap = self.entropy_log_std_cap();
+        if let Some(cap) = std_cap {
+            self.policy.hold_log_std(cap);
+        }
         let mut metrics = UpdateMetrics::default();
         let mut epochs = 0;
         for part in split_batch(fragments, self.config.max_update_steps) {
@@ -361,8 +385,15 @@ impl Learner {
             self.policy.update_obs_stats(&batch.x);
             self.buffers.recycle(batch);
         }
+        if let Some(cap) = std_cap {
+            // the policy gradient may have pushed the std past the cap in this update
+            self.policy.hold_log_std(cap);
+            let held = self.policy.log_std_values();
+            metrics.log_std_mean = f64::from(held.iter().sum::<f32>()) / held.len().max(1) as f64;
+        }
         metrics.epochs = epochs;
         self.version += 1;
+        self.trained_embedding_version = self.embedding_version;
         self.updates += 1;
         let episodes = std::mem::take(&mut self.episodes);
         let lag = std::mem::take(&mut self.batch_lag);

@@ -312,3 +312,40 @@ fn a_batch_of_two_rollouts_updated_in_two_parts_publishes_one_version() {
         "two passes move the weights otherwise"
     );
 }
+
+/// A policy whose std the entropy bonus holds at its cap (log std 0.5 in E) is held under
+/// the falling cap over the run's last quarter, and ends the run at `entropy_log_std_final`.
+#[test]
+fn the_std_is_held_under_the_falling_entropy_cap() {
+    let head = PolicyHead::Gaussian { dim: 2 };
+    let config = PpoConfig {
+        batch_steps: 4 * STEPS,
+        minibatch_size: 64,
+        tanh_mean: true,
+        ent_coef: 0.05,
+        init_log_std: 0.5,
+        ..PpoConfig::default()
+    };
+    let total = 4 * config.batch_steps as u64;
+    let mut learner = Learner::new(config, 5, head, total, 7, DeviceKind::Flex);
+    let mut rng = ChaCha8Rng::seed_from_u64(3);
+    let (mut ends, mut claimed) = (Vec::new(), 0);
+    for update in 0..4 {
+        for _ in 0..4 {
+            let mut f = crate::synthetic::fragment(5, head, update, STEPS, &mut rng);
+            claimed += STEPS as u64;
+            f.actor_env_steps = claimed;
+            learner.ingest(f).expect("a valid fragment");
+        }
+        let max = learner
+            .policy()
+            .log_std_values()
+            .into_iter()
+            .fold(f32::MIN, f32::max);
+        ends.push(max);
+    }
+    // up to three quarters of the run nothing is held (the bonus keeps the std near 0.5);
+    // at the end it is under -1
+    assert!(ends[..3].iter().all(|&v| v > 0.3), "{ends:?}");
+    assert!(ends[3] <= -1.0, "{ends:?}");
+}

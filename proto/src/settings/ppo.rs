@@ -35,6 +35,16 @@ pub struct PpoConfig {
     /// stops there; only the policy gradient moves the std further). Unset: E's rule
     /// ([`PpoConfig::entropy_log_std_cap`]).
     pub entropy_log_std_max: Option<f32>,
+    /// Where the entropy bonus's cap ends the run (None: E's rule,
+    /// [`PpoConfig::entropy_log_std_cap_at`]). From `entropy_cap_anneal_from` of the run's
+    /// env steps on, the cap falls linearly from `entropy_log_std_max` to this value and
+    /// becomes a ceiling: the std is held under it after every update, so a policy whose
+    /// std the bonus held wide commits by the end of the run and its mean is a policy of
+    /// its own. Without a bonus (`ent_coef` 0) or a step budget nothing is held.
+    pub entropy_log_std_final: Option<f32>,
+    /// The share of the run's env steps after which the entropy bonus's cap starts to fall
+    /// (`entropy_log_std_final`).
+    pub entropy_cap_anneal_from: f64,
     /// Weight of a self-supervised loss for the recommender's categorical policy (its
     /// actions are the items of the state's factors): the cross-entropy of the policy's
     /// softmax against the item bought next, read from the next state, added to the PPO loss
@@ -141,6 +151,8 @@ impl Default for PpoConfig {
             vf_coef: 0.5,
             ent_coef: 0.0,
             entropy_log_std_max: None,
+            entropy_log_std_final: None,
+            entropy_cap_anneal_from: 0.75,
             next_purchase_coef: 0.0,
             logged_pretrain_epochs: 0,
             logged_pretrain_lr: 1e-3,
@@ -178,12 +190,38 @@ pub const DEFAULT_MAX_ABS_REWARD: f32 = 1e6;
 /// 2,048 and 4,096 actions never explored far enough to find the goal.
 pub const EMBEDDED_ENTROPY_LOG_STD_MAX: f32 = 0.5;
 
+/// Where the entropy bonus's cap ends a run for a policy in an action-embedding space (std
+/// 0.37 in E = [-1, 1]^d). With the cap held at [`EMBEDDED_ENTROPY_LOG_STD_MAX`] to the end, a
+/// gridworld run that found the goal late kept the bonus's std (log std 0.5) and its mean
+/// decoded into a two-step loop while its samples solved the task (README, "When the greedy
+/// policy loops"); the 1M-step runs that solved the task early ended at log std -1.07 to
+/// -0.13 on the policy gradient alone.
+pub const EMBEDDED_ENTROPY_LOG_STD_FINAL: f32 = -1.0;
+
 impl PpoConfig {
     /// Where the entropy bonus stops counting the std (None: nowhere below the log-std
     /// clamp): the setting, else [`EMBEDDED_ENTROPY_LOG_STD_MAX`] for a tanh-bounded mean.
     pub fn entropy_log_std_cap(&self) -> Option<f32> {
         self.entropy_log_std_max
             .or(self.tanh_mean.then_some(EMBEDDED_ENTROPY_LOG_STD_MAX))
+    }
+
+    /// The largest log std the policy may keep after an update at `progress` (the share of
+    /// the run's env steps done, in [0, 1]): None before `entropy_cap_anneal_from`, without
+    /// an entropy bonus or without a cap to start from; then falling linearly from the cap
+    /// to `entropy_log_std_final` (else [`EMBEDDED_ENTROPY_LOG_STD_FINAL`] for a tanh-bounded
+    /// mean) at the end of the run. The entropy bonus stops there too.
+    pub fn entropy_log_std_cap_at(&self, progress: f64) -> Option<f32> {
+        let start = self.entropy_log_std_cap()?;
+        let end = self
+            .entropy_log_std_final
+            .or(self.tanh_mean.then_some(EMBEDDED_ENTROPY_LOG_STD_FINAL))?;
+        let from = self.entropy_cap_anneal_from;
+        if self.ent_coef <= 0.0 || progress.is_nan() || progress <= from {
+            return None;
+        }
+        let t = ((progress - from) / (1.0 - from)).min(1.0) as f32;
+        Some(start + (end - start) * t)
     }
 
     /// Whether a fresh policy learns from logged purchases (`logged_prior`,
@@ -217,8 +255,19 @@ impl PpoConfig {
         {
             return Err("ppo.clip and ppo.max_grad_norm must be positive".into());
         }
-        if self.entropy_log_std_max.is_some_and(|v| !v.is_finite()) {
-            return Err("ppo.entropy_log_std_max must be a finite number".into());
+        for (key, v) in [
+            ("entropy_log_std_max", self.entropy_log_std_max),
+            ("entropy_log_std_final", self.entropy_log_std_final),
+        ] {
+            if v.is_some_and(|v| !v.is_finite()) {
+                return Err(format!("ppo.{key} must be a finite number"));
+            }
+        }
+        if !(0.0..1.0).contains(&self.entropy_cap_anneal_from) {
+            return Err(format!(
+                "ppo.entropy_cap_anneal_from must be in [0, 1), got {}",
+                self.entropy_cap_anneal_from
+            ));
         }
         if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
             return Err("ppo.next_purchase_coef must be a finite number >= 0".into());
@@ -281,6 +330,36 @@ impl PpoConfig {
 mod tests {
     use super::*;
     use crate::settings::{Algo, EnvName, TrainConfig};
+
+    #[test]
+    fn the_entropy_cap_falls_over_the_runs_last_quarter_only_where_a_bonus_holds_the_std() {
+        let jsae = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae).ppo;
+        assert_eq!(jsae.entropy_log_std_cap_at(0.0), None);
+        assert_eq!(jsae.entropy_log_std_cap_at(0.75), None);
+        assert_eq!(jsae.entropy_log_std_cap_at(0.875), Some(-0.25));
+        assert_eq!(jsae.entropy_log_std_cap_at(1.0), Some(-1.0));
+        // no bonus (MuJoCo, the slot machine) or no cap (plain PPO): nothing is held
+        let cheetah = TrainConfig::defaults(EnvName::HalfCheetah, Algo::Jsae).ppo;
+        assert_eq!(cheetah.entropy_log_std_cap_at(1.0), None);
+        let ppo = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Ppo).ppo;
+        assert_eq!(ppo.entropy_log_std_cap_at(1.0), None);
+        let set = PpoConfig {
+            entropy_log_std_max: Some(0.0),
+            entropy_log_std_final: Some(-2.0),
+            entropy_cap_anneal_from: 0.0,
+            ent_coef: 0.01,
+            ..PpoConfig::default()
+        };
+        assert_eq!(set.entropy_log_std_cap_at(0.5), Some(-1.0));
+        let bad = PpoConfig {
+            entropy_cap_anneal_from: 1.0,
+            ..set
+        };
+        let refused = bad
+            .validate()
+            .expect_err("the fall must start before the end");
+        assert!(refused.contains("entropy_cap_anneal_from"), "{refused}");
+    }
 
     #[test]
     fn the_logged_prior_is_the_recommenders_ppo_default_and_the_pair_feature_valid_there() {
