@@ -91,6 +91,19 @@ async fn embedding_run_as_services(env: EnvName, algo: Algo) {
     );
     assert!(summary.embedding_version >= 1, "{name}: {summary:?}");
     assert!(summary.eval_return_mean.is_finite(), "{name}: {summary:?}");
+    // the evaluation ran on the embedding the final policy was trained on, also when the
+    // embedder published a newer one after the learner's last update
+    let metrics = MetricsTable::read(&RunDir::new(&c.out).metrics_csv()).expect("metrics.csv");
+    let trained_on = metrics
+        .column("embedding_version")
+        .last()
+        .copied()
+        .flatten();
+    assert_eq!(
+        trained_on,
+        Some(summary.embedding_version as f64),
+        "{name}: {summary:?}"
+    );
     let ckpt = RunDir::new(&c.out).checkpoints().path().to_path_buf();
     assert!(
         std::fs::read_dir(&ckpt)

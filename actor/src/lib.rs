@@ -14,6 +14,7 @@
 pub mod pacing;
 mod push;
 pub mod random_play;
+pub mod recent_embeddings;
 pub mod service;
 pub mod worker;
 

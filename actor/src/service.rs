@@ -30,6 +30,7 @@ use tonic::Code;
 use crate::pacing::{Pace, Pacing};
 use crate::push::push_forever;
 use crate::random_play::RandomPlay;
+use crate::recent_embeddings::RecentEmbeddings;
 use crate::worker::ActorWorker;
 use jsae_record::{Recorder, RecordingInfo};
 
@@ -123,6 +124,33 @@ fn stepping_loop(
     result
 }
 
+/// Installs the embedding the policy to evaluate was trained on (`version`, 0: not said),
+/// where this actor still holds it and holds a newer one; else says what it evaluates on.
+fn evaluation_embedding(
+    worker: &mut ActorWorker,
+    recent: &RecentEmbeddings,
+    version: u64,
+    actor: u64,
+) {
+    let current = worker.embedding_version();
+    if version == 0 || version == current {
+        return;
+    }
+    match recent.get(version).map(|e| worker.set_embedding(e)) {
+        Some(Ok(())) => tracing::info!(
+            "actor {actor}: evaluating on embedding v{version}, the policy's (v{current} came \
+             after its last update)"
+        ),
+        Some(Err(err)) => tracing::warn!(
+            "actor {actor}: embedding v{version} refused ({err}); evaluating on v{current}"
+        ),
+        None => tracing::warn!(
+            "actor {actor}: the policy was trained on embedding v{version}, which this actor \
+             no longer holds; evaluating on v{current}"
+        ),
+    }
+}
+
 fn step_until_done(
     config: &TrainConfig,
     options: &ActorOptions,
@@ -146,6 +174,7 @@ fn step_until_done(
     let mut refused: (Option<u64>, Option<u64>) = (None, None);
     let mut random_play = RandomPlay::new(config.random_play_share());
     let mut evaluation: Option<pb::EvalRequest> = None;
+    let mut recent = RecentEmbeddings::default();
     loop {
         report.env_steps = worker.env_steps();
         if stop.load(Ordering::Relaxed) {
@@ -162,6 +191,7 @@ fn step_until_done(
                 Ok(()) => {
                     report.embedding_versions.push(e.version);
                     tracing::info!("actor {}: embedding v{}", options.id, e.version);
+                    recent.installed(e);
                 }
                 Err(err) => {
                     tracing::error!("actor {}: embedding refused: {err}", options.id);
@@ -204,6 +234,7 @@ fn step_until_done(
                 r.episodes,
                 worker.policy_version().unwrap_or(0)
             );
+            evaluation_embedding(worker, &recent, r.embedding_version, options.id);
             let eval = worker.evaluate(r.episodes as usize, r.seed);
             let _ = links
                 .reports

@@ -15,6 +15,8 @@ use super::roster::Roster;
 pub(super) struct Evaluation {
     episodes: u32,
     seed: u64,
+    /// The embedding version the final policy was trained on.
+    embedding_version: u64,
     asked: Option<pb::EvalRequest>,
 }
 
@@ -23,6 +25,7 @@ impl Evaluation {
         Self {
             episodes,
             seed,
+            embedding_version: 0,
             asked: None,
         }
     }
@@ -33,8 +36,15 @@ impl Evaluation {
     }
 
     /// The request to publish: to `actor` when its stream is open (or none is), else to an
-    /// actor whose stream is.
-    pub(super) fn ask(&mut self, actor: u64, roster: &Roster) -> pb::EvalRequest {
+    /// actor whose stream is; evaluated on `embedding_version`, the one the final policy was
+    /// trained on.
+    pub(super) fn ask(
+        &mut self,
+        actor: u64,
+        roster: &Roster,
+        embedding_version: u64,
+    ) -> pb::EvalRequest {
+        self.embedding_version = embedding_version;
         let actor = if roster.is_open(actor) {
             actor
         } else {
@@ -65,6 +75,7 @@ impl Evaluation {
             episodes: self.episodes,
             seed: self.seed,
             actor_id,
+            embedding_version: self.embedding_version,
         };
         self.asked = Some(request);
         request
@@ -148,7 +159,7 @@ mod tests {
         assert_eq!(stream(&mut e, &mut r, 4, true), None);
         assert_eq!(stream(&mut e, &mut r, 9, true), None);
         assert_eq!(stream(&mut e, &mut r, 9, true), None);
-        let first = e.ask(9, &r);
+        let first = e.ask(9, &r, 0);
         assert_eq!((first.actor_id, first.episodes, first.seed), (9, 3, 7));
         assert_eq!(
             stream(&mut e, &mut r, 9, false),
@@ -169,7 +180,7 @@ mod tests {
             Evaluation::new(1, 0),
             Roster::new(1, 1, std::time::Duration::ZERO),
         );
-        let first = e.ask(2, &r);
+        let first = e.ask(2, &r, 0);
         assert_eq!(first.actor_id, 2, "no stream open: the fragment's actor");
         let second = stream(&mut e, &mut r, 5, true).expect("actor 5 asked");
         assert_eq!(second.actor_id, 5);
@@ -178,7 +189,7 @@ mod tests {
             Evaluation::new(1, 0),
             Roster::new(1, 1, std::time::Duration::ZERO),
         );
-        let first = e.ask(2, &r);
+        let first = e.ask(2, &r, 0);
         assert_eq!(stream(&mut e, &mut r, 2, true), None);
         assert_eq!(e.open(), Some(first));
     }
@@ -192,6 +203,6 @@ mod tests {
         assert_eq!(stream(&mut e, &mut r, 1, true), None);
         assert_eq!(stream(&mut e, &mut r, 3, true), None);
         assert_eq!(stream(&mut e, &mut r, 3, false), None);
-        assert_eq!(e.ask(3, &r).actor_id, 1);
+        assert_eq!(e.ask(3, &r, 0).actor_id, 1);
     }
 }

@@ -188,7 +188,11 @@ impl LearnerLoop {
                         queue_depth: queue.len(),
                     });
                     if self.learner.env_steps() >= self.config.env_steps {
-                        let request = evaluation.ask(actor_id, &roster);
+                        let request = evaluation.ask(
+                            actor_id,
+                            &roster,
+                            self.learner.trained_embedding_version(),
+                        );
                         tracing::info!(
                             "{} env steps reached: asking actor {} for {} evaluation episodes",
                             self.learner.env_steps(),
