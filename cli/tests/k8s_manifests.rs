@@ -63,8 +63,8 @@ fn the_kubernetes_manifests_pass_offline_validation() {
     std::fs::create_dir_all(&bad).expect("temp dir");
     let actor = std::fs::read_to_string(dir.join("actor.yaml")).expect("actor.yaml");
     for (name, text) in [
-        ("typo.yaml", actor.replace("replicas: 2", "replica: 2")),
-        ("type.yaml", actor.replace("replicas: 2", "replicas: two")),
+        ("typo.yaml", actor.replace("replicas: 3", "replica: 2")),
+        ("type.yaml", actor.replace("replicas: 3", "replicas: two")),
     ] {
         let path = bad.join(name);
         std::fs::write(&path, text).expect("write");

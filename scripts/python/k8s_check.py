@@ -15,6 +15,12 @@ Usage: k8s_check.py DIR. Prints what it checked; exits non-zero on the first pro
   declared port and the metrics port (the ConfigMap's JSAE_METRICS_LISTEN) of every workload
   is admitted by a policy, whose sources are printed; and every service URL in a container's
   arguments (`http://jsae-learner:50052`) is reachable from that container's pods.
+- In step with the swarm stack (DIR/../docker-stack.yml) and its settings (DIR/../config.toml):
+  the actor Deployment (the one whose container runs `actor`) spreads its pods over nodes (a
+  podAntiAffinity or topologySpreadConstraints on kubernetes.io/hostname whose selector matches
+  the actor pods' labels) and has as many replicas as the stack's default actor count (the N
+  of services.actor.deploy.replicas `${JSAE_ACTORS:-N}`); every ConfigMap `config.toml` holds
+  the same settings as deploy/config.toml.
 """
 
 import os
@@ -22,12 +28,16 @@ import posixpath
 import re
 import subprocess
 import sys
+import tomllib
 
 import yaml
 
 TOKEN_ENV = "JSAE_AUTH_TOKEN_FILE"
 MIN_TOKEN_CHARS = 16
 URL = re.compile(r"https?://([A-Za-z0-9.-]+):(\d+)")
+HOSTNAME = "kubernetes.io/hostname"
+# a compose/stack variable with a default: ${NAME:-N} (or ${NAME-N})
+STACK_DEFAULT = re.compile(r"^\$\{\w+:?-(\d+)\}$")
 
 
 def main():
@@ -50,6 +60,10 @@ def main():
     workloads = check_workloads(docs, secrets)
     check_services(docs, workloads)
     check_network_policies(docs, workloads)
+    actor = actor_deployment(docs)
+    check_actor_spread(*actor)
+    check_actor_replicas(root, *actor)
+    check_settings(root, docs)
 
 
 def generated_secrets(root, kustomization):
@@ -219,6 +233,127 @@ def check_network_policies(docs, workloads):
                         sys.exit(f"{wname} dials {host}:{port}, but no NetworkPolicy admits it "
                                  f"to {tname}:{tport} (admitted: {sorted(sources)})")
                 print(f"ok: {wname} may reach {host}:{port}")
+
+
+def actor_deployment(docs):
+    """(file, doc) of the one Deployment whose container runs `actor`."""
+    found = [(name, d) for name, d in docs if d["kind"] == "Deployment"
+             and any(((c.get("command") or []) + (c.get("args") or []))[:1] == ["actor"]
+                     for c in d["spec"]["template"]["spec"]["containers"])]
+    if len(found) != 1:
+        names = [d["metadata"]["name"] for _, d in found]
+        sys.exit(f"{len(found)} Deployments run `actor` {names}: want one (the stack's actor)")
+    return found[0]
+
+
+def check_actor_spread(name, d):
+    """The actor pods spread over nodes: a podAntiAffinity term or a topologySpreadConstraint
+    on the hostname whose selector matches the pods' own labels."""
+    where = f"{name}: Deployment {d['metadata']['name']}"
+    pod = d["spec"]["template"]
+    labels, spec = pod["metadata"]["labels"], pod["spec"]
+    ways = []
+    for c in spec.get("topologySpreadConstraints") or []:
+        if c["topologyKey"] == HOSTNAME and c.get("labelSelector") \
+                and matches(c["labelSelector"], labels):
+            ways.append(f"topologySpreadConstraints ({c['whenUnsatisfiable']})")
+    anti = (spec.get("affinity") or {}).get("podAntiAffinity") or {}
+    terms = [("required", t) for t in
+             anti.get("requiredDuringSchedulingIgnoredDuringExecution") or []]
+    terms += [("preferred", t["podAffinityTerm"]) for t in
+              anti.get("preferredDuringSchedulingIgnoredDuringExecution") or []]
+    for kind, t in terms:
+        if t["topologyKey"] == HOSTNAME and same_namespace(t, d) and t.get("labelSelector") \
+                and matches(t["labelSelector"], labels):
+            ways.append(f"podAntiAffinity ({kind})")
+    if not ways:
+        sys.exit(f"{where}: the actor pods may all land on one node: no podAntiAffinity or "
+                 f"topologySpreadConstraints on {HOSTNAME} selecting its pods {labels} (the "
+                 "stack spreads its actors, max_replicas_per_node)")
+    print(f"ok: {where} spreads its pods over nodes: {', '.join(ways)}")
+
+
+def same_namespace(term, d):
+    """Whether an affinity term looks at pods of the workload's own namespace."""
+    if "namespaceSelector" in term:
+        return True  # {} is every namespace; a narrower one is not worth resolving here
+    spaces = term.get("namespaces")
+    return not spaces or d["metadata"].get("namespace") in spaces
+
+
+def check_actor_replicas(root, name, d):
+    """The actor replicas equal the stack's default actor count (${JSAE_ACTORS:-N})."""
+    stack = yaml.safe_load(read_sibling(root, "docker-stack.yml"))
+    try:
+        want = stack["services"]["actor"]["deploy"]["replicas"]
+    except (KeyError, TypeError):
+        sys.exit(f"{root}/../docker-stack.yml: no services.actor.deploy.replicas")
+    if not isinstance(want, int):
+        m = STACK_DEFAULT.match(str(want))
+        if not m:
+            sys.exit(f"docker-stack.yml: actor replicas {want!r} is neither a number nor "
+                     "${NAME:-N}")
+        want = int(m[1])
+    have = d["spec"].get("replicas", 1)
+    if have != want:
+        sys.exit(f"{name}: Deployment {d['metadata']['name']} has {have} replicas, the swarm "
+                 f"stack's actors default to {want} (docker-stack.yml); keep them in step")
+    print(f"ok: {name}: Deployment {d['metadata']['name']} has {have} replicas, as the stack")
+
+
+def check_settings(root, docs):
+    """Every ConfigMap's config.toml holds the settings of deploy/config.toml."""
+    want = tomllib.loads(read_sibling(root, "config.toml"))
+    maps = [(name, d) for name, d in docs
+            if d["kind"] == "ConfigMap" and "config.toml" in (d.get("data") or {})]
+    if not maps:
+        sys.exit("no ConfigMap holds config.toml (the workloads mount it at /etc/jsae)")
+    for name, d in maps:
+        where = f"{name}: ConfigMap {d['metadata']['name']} config.toml"
+        try:
+            have = tomllib.loads(d["data"]["config.toml"])
+        except tomllib.TOMLDecodeError as e:
+            sys.exit(f"{where}: not TOML: {e}")
+        if have != want:
+            sys.exit(f"{where} differs from deploy/config.toml: "
+                     f"{'; '.join(differences(have, want))}")
+        print(f"ok: {where}: the settings of deploy/config.toml ({', '.join(sorted(flat(want)))})")
+
+
+def read_sibling(root, file):
+    """The text of deploy/FILE, the folder above the manifests'."""
+    path = os.path.join(root, os.pardir, file)
+    try:
+        with open(path) as f:
+            return f.read()
+    except FileNotFoundError:
+        sys.exit(f"{os.path.normpath(path)} not found (the k8s folder's sibling, which the "
+                 "manifests must match)")
+
+
+def flat(table, prefix=""):
+    """A TOML table as {dotted key: value}."""
+    out = {}
+    for k, v in table.items():
+        if isinstance(v, dict):
+            out.update(flat(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def differences(have, want):
+    """What the ConfigMap's settings `have` differ in from deploy/config.toml's `want`."""
+    have, want = flat(have), flat(want)
+    out = []
+    for k in sorted(have.keys() | want.keys()):
+        if k not in want:
+            out.append(f"{k} only in the ConfigMap")
+        elif k not in have:
+            out.append(f"{k} = {want[k]!r} missing from the ConfigMap")
+        elif have[k] != want[k]:
+            out.append(f"{k} = {have[k]!r} in the ConfigMap, {want[k]!r} in deploy/config.toml")
+    return out or ["their (empty) tables differ"]
 
 
 def metrics_port(docs):
