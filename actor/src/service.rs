@@ -136,7 +136,7 @@ fn evaluation_embedding(
     if version == 0 || version == current {
         return;
     }
-    match recent.get(version).map(|e| worker.set_embedding(e)) {
+    match recent.get(version).map(|e| worker.use_embedding(e)) {
         Some(Ok(())) => tracing::info!(
             "actor {actor}: evaluating on embedding v{version}, the policy's (v{current} came \
              after its last update)"
@@ -182,9 +182,12 @@ fn step_until_done(
         }
         // A snapshot that does not fit this actor's model (another run's service, a
         // different config) is refused once, logged, and the current weights kept.
+        // (newer than any installed: after the evaluation went back to an older one, the
+        // worker stays on it)
         let newest = links.embedding.borrow().clone();
+        let installed = report.embedding_versions.last().copied().unwrap_or(0);
         if let Some(e) = newest
-            && e.version != worker.embedding_version()
+            && e.version > installed.max(worker.embedding_version())
             && refused.0 != Some(e.version)
         {
             match worker.set_embedding(&e) {

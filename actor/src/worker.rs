@@ -182,6 +182,12 @@ impl ActorWorker {
         Ok(())
     }
 
+    /// Installs `snapshot` even if older than the one in use (the evaluation's embedding).
+    pub fn use_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), WorkerError> {
+        self.weights.load_embedding(snapshot)?;
+        Ok(())
+    }
+
     /// How the deterministic evaluation decodes a policy over action embeddings into a
     /// discrete action (default: f of the mean).
     pub fn set_greedy_decode(&mut self, decode: GreedyDecode) {

@@ -132,6 +132,13 @@ impl Weights {
         if snapshot.version <= self.embedding_version() {
             return Ok(false);
         }
+        self.load_embedding(snapshot)?;
+        Ok(true)
+    }
+
+    /// Installs `snapshot` whatever its version, an older one too (the end-of-run evaluation
+    /// goes back to the embedding the final policy was trained on).
+    pub fn load_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), SwapError> {
         let embedding = Embedding::from_snapshot(
             &self.config.embedding,
             self.config.algo.representation(),
@@ -146,6 +153,6 @@ impl Weights {
             source,
         })?;
         self.embedding = Some(embedding);
-        Ok(true)
+        Ok(())
     }
 }
