@@ -388,9 +388,14 @@ impl Learner {
         if let Some(cap) = std_cap {
             // the policy gradient may have pushed the std past the cap in this update
             self.policy.hold_log_std(cap);
-            let held = self.policy.log_std_values();
-            metrics.log_std_mean = f64::from(held.iter().sum::<f32>()) / held.len().max(1) as f64;
         }
+        metrics.log_std_mean = match self.policy.head() {
+            PolicyHead::Gaussian { .. } => {
+                let v = self.policy.log_std_values();
+                f64::from(v.iter().sum::<f32>()) / v.len().max(1) as f64
+            }
+            PolicyHead::Categorical { .. } => 0.0,
+        };
         metrics.epochs = epochs;
         self.version += 1;
         self.trained_embedding_version = self.embedding_version;

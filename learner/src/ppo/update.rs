@@ -23,15 +23,7 @@ impl Learner {
             UpdatePath::Fused => self.optimise_fused(batch, lr),
             UpdatePath::Burn => self.optimise_burn(batch, lr),
         };
-        let log_std_mean = match self.policy.head() {
-            PolicyHead::Gaussian { .. } => {
-                let v = self.policy.log_std_values();
-                f64::from(v.iter().sum::<f32>()) / v.len().max(1) as f64
-            }
-            PolicyHead::Categorical { .. } => 0.0,
-        };
         UpdateMetrics {
-            log_std_mean,
             explained_variance: batch.explained_variance(),
             ..metrics
         }
