@@ -5,13 +5,17 @@
 # (a new id) started. Prints the run's summary.json on one line, prefixed with the seed.
 #   scripts/by-hand-run.sh SEED OUT_DIR [ENV_STEPS]
 # JSAE=path/to/jsae (default target/release/jsae); the run's settings are the defaults of
-# gridworld-discrete with JSAE (512 actions). Ports are free ones, so runs can go side by side.
+# gridworld-discrete with JSAE (512 actions), or CONFIG=settings.toml's (given to every process).
+# Ports are free ones, so runs can go side by side.
 set -euo pipefail
 seed="$1"
 out="$2"
 steps="${3:-500000}"
 jsae="${JSAE:-target/release/jsae}"
 common=(--env gridworld-discrete --algo jsae --seed "$seed")
+if [[ -n "${CONFIG:-}" ]]; then
+    common+=(--config "$CONFIG")
+fi
 rm -rf "$out"
 mkdir -p "$out/logs"
 read -r eport lport < <(python3 -c '

@@ -80,6 +80,7 @@ async fn with_a_token_every_rpc_but_health_needs_it() {
                     .watch_embedding(pb::WatchRequest::default())
                     .await,
             ),
+            outcome(embedder_rpc.hold_embedding(pb::HoldRequest {}).await),
             outcome(
                 learner_rpc
                     .push_fragments(tokio_stream::iter(Vec::<pb::RolloutFragment>::new()))

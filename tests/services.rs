@@ -8,7 +8,7 @@ use jsae_actor::service::ActorExit;
 use jsae_embedder::service::EmbedderOptions;
 use jsae_learner::MetricsTable;
 use jsae_proto::ActionBatch;
-use jsae_proto::run_dir::RunDir;
+use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::settings::{Algo, EnvName};
 use jsae_proto::wire::pb;
 use jsae_tests::services::*;
@@ -371,12 +371,19 @@ async fn health_answers_serving_and_reflection_lists_the_services() {
     embedder.stop().await.expect("embedder stops");
 }
 
-#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_restarted_embedder_continues_its_version_line() {
-    let mut c = config(EnvName::Gridworld, Algo::Jsae, "restart-embedder");
+/// A JSAE gridworld run whose embedder pre-trains on the 512 transitions of
+/// `pretrain_to_version_one`, in one pass.
+fn pretrained_on_512(name: &str) -> jsae_proto::settings::TrainConfig {
+    let mut c = config(EnvName::Gridworld, Algo::Jsae, name);
     c.embedding.pretrain_transitions = 512;
     c.embedding.pretrain_per_action = 0;
     c.embedding.pretrain_epochs = 1;
+    c
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_restarted_embedder_continues_its_version_line() {
+    let c = pretrained_on_512("restart-embedder");
     let options = EmbedderOptions {
         checkpoint_dir: Some(RunDir::new(&c.out).checkpoints().path().to_path_buf()),
         pretrain_from: None,
@@ -390,6 +397,48 @@ async fn a_restarted_embedder_continues_its_version_line() {
     let second = start_embedder_with(&c, options).await;
     assert_eq!(first_embedding_version(&second.url).await, 1);
     second.stop().await.expect("stops cleanly");
+}
+
+/// `Embedder.HoldEmbedding` (the learner asks from `embedding.hold_from` of the run on): the
+/// updates run before it, and none after it, whatever arrives (stopping drains the queue).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_held_embedder_publishes_no_new_version() {
+    let mut c = pretrained_on_512("held-embedder");
+    c.embedding.update_every = 512;
+    c.embedding.update_steps = 1;
+    let checkpoints = RunDir::new(&c.out).checkpoints();
+    let options = EmbedderOptions {
+        checkpoint_dir: Some(checkpoints.path().to_path_buf()),
+        ..Default::default()
+    };
+    let embedder = start_embedder_with(&c, options).await;
+    pretrain_to_version_one(&embedder.url).await;
+    let mut client = pb::embedder_client::EmbedderClient::connect(embedder.url.clone())
+        .await
+        .expect("connect");
+    let batches = |n| vec![pb::TransitionBatch::from(transitions(512, -0.01)); n];
+    client
+        .push_transitions(tokio_stream::iter(batches(1)))
+        .await
+        .expect("accepted");
+    let newest = || checkpoints.read_latest(Weights::Embedding).map(|(v, _)| v);
+    tokio::time::timeout(Duration::from_secs(60), async {
+        while newest() != Some(2) {
+            tokio::time::sleep(Duration::from_millis(20)).await;
+        }
+    })
+    .await
+    .expect("an update before the hold");
+    client
+        .hold_embedding(pb::HoldRequest {})
+        .await
+        .expect("held");
+    client
+        .push_transitions(tokio_stream::iter(batches(4)))
+        .await
+        .expect("accepted");
+    embedder.stop().await.expect("stops cleanly");
+    assert_eq!(newest(), Some(2), "no update after the hold");
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]

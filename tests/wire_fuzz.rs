@@ -81,6 +81,12 @@ fn rpcs() -> Vec<Rpc> {
             watch.clone(),
         ),
         rpc(
+            0,
+            "/jsae.v1.Embedder/HoldEmbedding",
+            Shape::Unary,
+            pb::HoldRequest {}.encode_to_vec(),
+        ),
+        rpc(
             1,
             "/jsae.v1.Learner/PushFragments",
             Shape::ClientStream,

@@ -529,18 +529,17 @@ impl ActorWorker {
                 };
                 run.ret += step.reward;
                 run.len += 1;
-                if sampling.is_none() {
-                    // `RUST_LOG=jsae_actor=trace jsae eval ...`: the deterministic episodes
-                    // step by step (where a greedy policy loops)
-                    tracing::trace!(
-                        episode = stats.len(),
-                        step = run.len,
-                        state = ?state,
-                        action = ?env_action,
-                        reward = step.reward,
-                        "deterministic evaluation step"
-                    );
-                }
+                // `RUST_LOG=jsae_actor=trace jsae eval ...`: the episodes step by step (where a
+                // greedy policy loops, and where the sampled one goes instead)
+                tracing::trace!(
+                    episode = stats.len(),
+                    step = run.len,
+                    state = ?state,
+                    action = ?env_action,
+                    reward = step.reward,
+                    "{} evaluation step",
+                    if sampling.is_none() { "deterministic" } else { "sampled" }
+                );
                 if step.terminated || step.truncated {
                     stats.push(EpisodeStat {
                         ret: run.ret,

@@ -254,6 +254,7 @@ pub fn train_one_process_with(
     ckpt.write_latest_checkpoint(Weights::Policy, &saved)
         .map_err(io(ckpt.path()))?;
     let mut last_policy: PolicySnapshot = first;
+    let hold_at = config.embedding_hold_at();
     while learner.env_steps() < config.env_steps {
         for i in 0..actors.len() {
             let rollout = actors[i].collect(config.rollout_len);
@@ -273,6 +274,10 @@ pub fn train_one_process_with(
                             emb.pretrain_budget()
                         ),
                     );
+                }
+                if hold_at.is_some_and(|at| learner.env_steps() >= at) && !emb.held() {
+                    // embedding.hold_from: the policy's last updates use one embedding
+                    emb.hold();
                 }
                 if let Some(snap) = emb
                     .poll()

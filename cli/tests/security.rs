@@ -261,6 +261,7 @@ fn a_python_client_needs_the_token_on_every_embedder_and_learner_rpc_but_health(
     let rpcs = [
         "embedder/PushTransitions",
         "embedder/WatchEmbedding",
+        "embedder/HoldEmbedding",
         "embedder/reflection",
         "learner/PushFragments",
         "learner/WatchPolicy",

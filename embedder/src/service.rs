@@ -4,12 +4,13 @@
 //! queue (backpressure reaches the actors when training is behind); one training thread owns
 //! the [`EmbedderTrainer`]: it pre-trains once enough random transitions are in, then trains on
 //! its schedule, and publishes each snapshot to every `WatchEmbedding` subscriber (latest
-//! wins: a slow subscriber skips versions rather than queueing them).
+//! wins: a slow subscriber skips versions rather than queueing them). `HoldEmbedding` (the
+//! learner's, from `embedding.hold_from` of the run on) ends the updates for good.
 
 use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use jsae_proto::net;
 use jsae_proto::run_dir::{Checkpoints, Weights};
@@ -43,6 +44,8 @@ pub struct EmbedderService {
     published: Published,
     stopping: watch::Receiver<bool>,
     accepted: Arc<AtomicU64>,
+    /// Set by `HoldEmbedding`; the training thread stops its continuous updates.
+    held: Arc<AtomicBool>,
 }
 
 #[tonic::async_trait]
@@ -97,6 +100,14 @@ impl pb::embedder_server::Embedder for EmbedderService {
         });
         Ok(Response::new(stream))
     }
+
+    async fn hold_embedding(
+        &self,
+        _request: Request<pb::HoldRequest>,
+    ) -> Result<Response<pb::Ack>, Status> {
+        self.held.store(true, Ordering::Relaxed);
+        Ok(Response::new(pb::Ack {}))
+    }
 }
 
 /// Where the embedder keeps its checkpoints, if anywhere.
@@ -132,6 +143,7 @@ fn training_loop(
     states: &StateSpace,
     actions: &ActionSpace,
     mut queue: mpsc::Receiver<TransitionBatch>,
+    held: &AtomicBool,
     publish: &watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
     options: &EmbedderOptions,
 ) -> Result<(), String> {
@@ -178,6 +190,13 @@ fn training_loop(
     }
     while let Some(batch) = queue.blocking_recv() {
         trainer.ingest(&batch).map_err(|e| e.to_string())?;
+        if !trainer.held() && held.load(Ordering::Relaxed) {
+            trainer.hold();
+            tracing::info!(
+                "embedding held at v{}: no more updates (the learner asked, embedding.hold_from)",
+                trainer.stats().version
+            );
+        }
         if let Some(snap) = trainer.poll().map_err(|e| e.to_string())? {
             publish_snapshot(snap, &trainer, publish, options);
         }
@@ -245,13 +264,23 @@ pub async fn serve(
         published: publish_rx,
         stopping: stop_rx,
         accepted: Arc::new(AtomicU64::new(0)),
+        held: Arc::new(AtomicBool::new(false)),
     };
     let trainer = {
         let config = config.clone();
+        let held = service.held.clone();
         std::thread::Builder::new()
             .name("embedder-train".into())
             .spawn(move || {
-                training_loop(&config, &states, &actions, queue_rx, &publish_tx, &options)
+                training_loop(
+                    &config,
+                    &states,
+                    &actions,
+                    queue_rx,
+                    &held,
+                    &publish_tx,
+                    &options,
+                )
             })?
     };
     let server = pb::embedder_server::EmbedderServer::new(service)

@@ -47,6 +47,8 @@ pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
     replay: Replay,
     rng: ChaCha8Rng,
     since_update: usize,
+    /// No more continuous updates ([`EmbedderTrainer::hold`]).
+    held: bool,
     stats: EmbedderStats,
     structure: Option<ActionStructure>,
     pretrain_observer: Option<PretrainObserver>,
@@ -132,6 +134,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             optim: OptimDebug(optim),
             rng,
             since_update: 0,
+            held: false,
             stats: EmbedderStats::default(),
             structure: None,
             pretrain_observer: None,
@@ -181,15 +184,31 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         Ok(())
     }
 
+    /// Stops the continuous updates for good: the embedding stays at its current version
+    /// (pre-training still runs if it has not yet). The run's last part trains the policy on
+    /// one embedding, the one it is evaluated with (`embedding.hold_from`).
+    pub fn hold(&mut self) {
+        self.held = true;
+    }
+
+    /// Whether [`EmbedderTrainer::hold`] was called.
+    pub fn held(&self) -> bool {
+        self.held
+    }
+
     /// Trains if a round is due (pre-training once enough random transitions arrived, then
-    /// continuous updates every `update_every` transitions) and returns the new snapshot.
+    /// continuous updates every `update_every` transitions until held) and returns the new
+    /// snapshot.
     pub fn poll(&mut self) -> Result<Option<EmbeddingSnapshot>, nn::RecordError> {
         if !self.pretrained() {
             if self.replay.len() < self.config.pretrain_budget(self.model.action_space()) {
                 return Ok(None);
             }
             self.pretrain();
-        } else if self.config.update_every > 0 && self.since_update >= self.config.update_every {
+        } else if !self.held
+            && self.config.update_every > 0
+            && self.since_update >= self.config.update_every
+        {
             let lr = self.config.update_lr;
             let steps = self.config.update_steps;
             let mut loss = (0.0, 0.0);
@@ -475,5 +494,42 @@ mod tests {
         bad.actions = ActionBatch::Discrete(vec![0, 1, 2, 99]);
         assert!(t.ingest(&bad).is_err());
         assert_eq!(t.replay_len(), 0);
+    }
+
+    /// A held trainer still pre-trains once, then publishes no new version whatever arrives.
+    #[test]
+    fn a_held_trainer_pretrains_and_then_publishes_nothing_new() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let config = EmbeddingConfig {
+            pretrain_transitions: 256,
+            pretrain_per_action: 0,
+            pretrain_epochs: 2,
+            batch_size: 64,
+            update_every: 256,
+            update_steps: 2,
+            ..EmbeddingConfig::default()
+        };
+        let trainer = || {
+            EmbedderTrainer::new(
+                config.clone(),
+                Representation::Jsae,
+                &StateSpace::discrete(20),
+                &ActionSpace::Discrete { n: 8 },
+                1,
+                DeviceKind::Flex,
+            )
+        };
+        let (mut held, mut free) = (trainer(), trainer());
+        held.hold();
+        for t in [&mut held, &mut free] {
+            t.ingest(&ring(256, &mut rng)).expect("valid");
+            let first = t.poll().expect("serialises").expect("pre-trained");
+            assert_eq!(first.version, 1);
+            t.ingest(&ring(512, &mut rng)).expect("valid");
+        }
+        assert!(held.poll().expect("serialises").is_none());
+        assert_eq!(held.stats().version, 1);
+        let next = free.poll().expect("serialises").expect("an update is due");
+        assert_eq!(next.version, 2);
     }
 }

@@ -143,3 +143,32 @@ pub async fn watch_policy<F, Fut>(
         tokio::time::sleep(backoff.next_delay()).await;
     }
 }
+
+/// How often [`hold_embedding`] asks again (an embedder that restarted has forgotten).
+pub const HOLD_EVERY: std::time::Duration = std::time::Duration::from_secs(2);
+
+/// Asks the embedder at `url` to hold its embedding (`Embedder.HoldEmbedding`), then again
+/// every [`HOLD_EVERY`], for as long as the caller polls it: an embedder restarted from its
+/// checkpoint holds again within that time. Logs the first answer.
+pub async fn hold_embedding(security: &Security, url: &str) {
+    let channel = match security.channel(url) {
+        Ok(c) => c,
+        Err(e) => {
+            tracing::error!("embedder URL {url}: {e}");
+            return;
+        }
+    };
+    let mut client = pb::embedder_client::EmbedderClient::new(channel);
+    let mut held = false;
+    loop {
+        match client.hold_embedding(pb::HoldRequest {}).await {
+            Ok(_) if !held => {
+                held = true;
+                tracing::info!("the embedder holds its embedding (embedding.hold_from)");
+            }
+            Ok(_) => {}
+            Err(status) => tracing::debug!("holding the embedding at {url}: {status}"),
+        }
+        tokio::time::sleep(HOLD_EVERY).await;
+    }
+}

@@ -47,6 +47,8 @@ def rpcs(pb, rpc, channel, service):
             iter([]), timeout=5, metadata=md)
         calls["WatchEmbedding"] = lambda md: first(stub.WatchEmbedding(
             pb.WatchRequest(), timeout=2, metadata=md))
+        calls["HoldEmbedding"] = lambda md: stub.HoldEmbedding(
+            pb.HoldRequest(), timeout=5, metadata=md)
     else:
         stub = rpc.LearnerStub(channel)
         calls["PushFragments"] = lambda md: stub.PushFragments(iter([]), timeout=5, metadata=md)

@@ -160,6 +160,23 @@ pub async fn serve(
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
     };
+    // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
+    let (hold_tx, mut hold_rx) = watch::channel(false);
+    if let Some(url) = options.embedder.clone() {
+        let stop = net::stopped(&stop_rx);
+        let security = options.security.clone();
+        tokio::spawn(async move {
+            let hold = async {
+                if hold_rx.wait_for(|held| *held).await.is_ok() {
+                    client::hold_embedding(&security, &url).await;
+                }
+            };
+            tokio::select! {
+                () = hold => {}
+                () = stop => {}
+            }
+        });
+    }
     if let Some(url) = options.embedder.clone() {
         let queue = queue_tx.clone();
         let stop = net::stopped(&stop_rx);
@@ -200,6 +217,7 @@ pub async fn serve(
         learner,
         metrics: Box::new(metrics),
         publish: publish_tx,
+        hold: hold_tx,
         version,
         embedding: None,
         started,

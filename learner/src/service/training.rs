@@ -45,6 +45,9 @@ pub(super) struct LearnerLoop {
     pub(super) learner: Learner,
     pub(super) metrics: Box<dyn MetricsSink>,
     pub(super) publish: watch::Sender<PolicyState>,
+    /// Set from `embedding.hold_from` of the run on: the embedder is asked to hold its
+    /// embedding (a task in the service repeats the request).
+    pub(super) hold: watch::Sender<bool>,
     pub(super) version: Arc<AtomicU64>,
     pub(super) embedding: Option<EmbeddingSnapshot>,
     pub(super) started: Instant,
@@ -106,6 +109,18 @@ impl LearnerLoop {
         );
         self.telemetry
             .observe_update(report.metrics.policy_lag_mean);
+        if let Some(at) = self.config.embedding_hold_at()
+            && self.learner.env_steps() >= at
+            && !*self.hold.borrow()
+        {
+            tracing::info!(
+                "{} of {} env steps: asking the embedder to hold embedding v{} (embedding.hold_from)",
+                self.learner.env_steps(),
+                self.config.env_steps,
+                self.learner.embedding_version()
+            );
+            self.hold.send_replace(true);
+        }
         Ok(())
     }
 

@@ -53,6 +53,11 @@ pub struct EmbeddingConfig {
     /// Real-valued states: phi sees them normalised by running mean and variance (part of
     /// the embedding's weights and snapshots), and T predicts normalised next states.
     pub normalize_states: bool,
+    /// The share of the run's env steps from which the embedding no longer changes: the
+    /// learner asks the embedder to hold it (`Embedder.HoldEmbedding`), so the policy's last
+    /// updates and its evaluation use one embedding (None, the default: never; README, "When
+    /// the greedy policy loops", has what it changed on the gridworld).
+    pub hold_from: Option<f64>,
 }
 
 impl Default for EmbeddingConfig {
@@ -74,6 +79,7 @@ impl Default for EmbeddingConfig {
             update_steps: 50,
             update_lr: 0.003,
             normalize_states: false,
+            hold_from: None,
         }
     }
 }
@@ -90,6 +96,13 @@ impl EmbeddingConfig {
 
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
+        if let Some(share) = self.hold_from
+            && !(share > 0.0 && share <= 1.0)
+        {
+            return Err(format!(
+                "embedding.hold_from must be in (0, 1], got {share}"
+            ));
+        }
         if self.state_dim == 0 || self.action_dim == 0 {
             return Err("embedding.state_dim and embedding.action_dim must be positive".into());
         }
@@ -110,6 +123,7 @@ impl EmbeddingConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::settings::{Algo, EnvName};
 
     #[test]
     fn the_pretraining_budget_grows_with_the_actions() {
@@ -128,5 +142,32 @@ mod tests {
             ..c
         };
         assert_eq!(fixed.pretrain_budget(&discrete(4096)), 20_000);
+    }
+
+    #[test]
+    fn the_hold_is_a_share_of_the_run() {
+        let c = EmbeddingConfig::default();
+        assert_eq!(c.hold_from, None);
+        let set = EmbeddingConfig {
+            hold_from: Some(0.7),
+            ..c.clone()
+        };
+        set.validate().expect("valid");
+        let mut run =
+            crate::settings::TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
+        run.env_steps = 500_000;
+        assert_eq!(run.embedding_hold_at(), None);
+        run.embedding.hold_from = Some(0.7);
+        assert_eq!(run.embedding_hold_at(), Some(350_000));
+        run.algo = Algo::Ppo;
+        assert_eq!(run.embedding_hold_at(), None, "no embedder to hold");
+        for bad in [0.0, 1.5, f64::NAN] {
+            let bad = EmbeddingConfig {
+                hold_from: Some(bad),
+                ..c.clone()
+            };
+            let reason = bad.validate().expect_err("out of range");
+            assert!(reason.contains("embedding.hold_from"), "{reason}");
+        }
     }
 }

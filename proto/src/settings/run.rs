@@ -395,6 +395,17 @@ impl TrainConfig {
         self.env.spaces(&self.environment)
     }
 
+    /// The run's env step from which its embedding no longer changes
+    /// (`embedding.hold_from`; None without an embedder, without a step budget or where the
+    /// embedding is never held).
+    pub fn embedding_hold_at(&self) -> Option<u64> {
+        if !self.algo.representation().needs_embedder() || self.env_steps == 0 {
+            return None;
+        }
+        let share = self.embedding.hold_from?;
+        Some((share * self.env_steps as f64).ceil() as u64)
+    }
+
     /// Env steps per rollout round of all actors (the learner's batch).
     pub fn round_steps(&self) -> usize {
         self.actors * self.envs_per_actor * self.rollout_len
