@@ -254,7 +254,6 @@ pub fn train_one_process_with(
     ckpt.write_latest_checkpoint(Weights::Policy, &saved)
         .map_err(io(ckpt.path()))?;
     let mut last_policy: PolicySnapshot = first;
-    let hold_at = config.embedding_hold_at();
     while learner.env_steps() < config.env_steps {
         for i in 0..actors.len() {
             let rollout = actors[i].collect(config.rollout_len);
@@ -275,7 +274,7 @@ pub fn train_one_process_with(
                         ),
                     );
                 }
-                if hold_at.is_some_and(|at| learner.env_steps() >= at) && !emb.held() {
+                if !emb.held() && config.embedding_held_at(learner.env_steps()) {
                     // embedding.hold_from: the policy's last updates use one embedding
                     emb.hold();
                 }

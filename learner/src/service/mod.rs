@@ -163,12 +163,15 @@ pub async fn serve(
     // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
     let (hold_tx, mut hold_rx) = watch::channel(false);
     if let Some(url) = options.embedder.clone() {
-        let stop = net::stopped(&stop_rx);
-        let security = options.security.clone();
+        let (stop, security, at) = (
+            net::stopped(&stop_rx),
+            options.security.clone(),
+            url.clone(),
+        );
         tokio::spawn(async move {
             let hold = async {
                 if hold_rx.wait_for(|held| *held).await.is_ok() {
-                    client::hold_embedding(&security, &url).await;
+                    client::hold_embedding(&security, &at).await;
                 }
             };
             tokio::select! {
@@ -176,8 +179,6 @@ pub async fn serve(
                 () = stop => {}
             }
         });
-    }
-    if let Some(url) = options.embedder.clone() {
         let queue = queue_tx.clone();
         let stop = net::stopped(&stop_rx);
         let security = options.security.clone();

@@ -109,10 +109,7 @@ impl LearnerLoop {
         );
         self.telemetry
             .observe_update(report.metrics.policy_lag_mean);
-        if let Some(at) = self.config.embedding_hold_at()
-            && self.learner.env_steps() >= at
-            && !*self.hold.borrow()
-        {
+        if !*self.hold.borrow() && self.config.embedding_held_at(self.learner.env_steps()) {
             tracing::info!(
                 "{} of {} env steps: asking the embedder to hold embedding v{} (embedding.hold_from)",
                 self.learner.env_steps(),

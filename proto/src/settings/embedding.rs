@@ -156,11 +156,12 @@ mod tests {
         let mut run =
             crate::settings::TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
         run.env_steps = 500_000;
-        assert_eq!(run.embedding_hold_at(), None);
+        assert!(!run.embedding_held_at(500_000), "unset: never");
         run.embedding.hold_from = Some(0.7);
-        assert_eq!(run.embedding_hold_at(), Some(350_000));
+        assert!(!run.embedding_held_at(349_999));
+        assert!(run.embedding_held_at(350_000));
         run.algo = Algo::Ppo;
-        assert_eq!(run.embedding_hold_at(), None, "no embedder to hold");
+        assert!(!run.embedding_held_at(500_000), "no embedder to hold");
         for bad in [0.0, 1.5, f64::NAN] {
             let bad = EmbeddingConfig {
                 hold_from: Some(bad),

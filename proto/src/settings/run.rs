@@ -395,15 +395,15 @@ impl TrainConfig {
         self.env.spaces(&self.environment)
     }
 
-    /// The run's env step from which its embedding no longer changes
-    /// (`embedding.hold_from`; None without an embedder, without a step budget or where the
-    /// embedding is never held).
-    pub fn embedding_hold_at(&self) -> Option<u64> {
-        if !self.algo.representation().needs_embedder() || self.env_steps == 0 {
-            return None;
-        }
-        let share = self.embedding.hold_from?;
-        Some((share * self.env_steps as f64).ceil() as u64)
+    /// Whether the run's embedding no longer changes once `env_steps` are done
+    /// (`embedding.hold_from`; never without an embedder, without a step budget or unset).
+    pub fn embedding_held_at(&self, env_steps: u64) -> bool {
+        let Some(share) = self.embedding.hold_from else {
+            return false;
+        };
+        self.algo.representation().needs_embedder()
+            && self.env_steps > 0
+            && env_steps as f64 >= share * self.env_steps as f64
     }
 
     /// Env steps per rollout round of all actors (the learner's batch).
