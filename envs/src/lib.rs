@@ -111,10 +111,12 @@ pub fn step_all(
     });
 }
 
-/// Threads for `step_all`: `configured`, or one per core when 0.
-pub fn step_threads(configured: usize) -> usize {
+/// Threads for `step_all`: `configured`, or when 0 the machine's cores shared among the
+/// `actors` of a run that start on it together (at least one each): 8 actors of 16
+/// environments on 16 cores each step on 2 threads, not on 16 that take turns.
+pub fn step_threads(configured: usize, actors: usize) -> usize {
     match configured {
-        0 => std::thread::available_parallelism().map_or(1, usize::from),
+        0 => (std::thread::available_parallelism().map_or(1, usize::from) / actors.max(1)).max(1),
         n => n,
     }
 }

@@ -78,19 +78,20 @@ fn one_hot_rows(x: &mut [f32], sizes: &[usize], rng: &mut ChaCha8Rng) {
 /// Times `updates` PPO updates of 2,048 synthetic samples under `env`/`algo`'s defaults on
 /// the given update path, after one untimed warm-up update.
 pub fn bench_case(env: EnvName, algo: Algo, updates: usize, path: UpdatePath) -> LearnerBench {
-    bench_batch(env, algo, updates, path, BATCH)
+    bench_batch(env, algo, updates, path, BATCH, None)
 }
 
 /// [`bench_case`] with batches of `batch` samples (whole fragments of 128 steps): what the
 /// learner does per update when `batch / 2048` actors of 16 environments feed it, so
 /// `batch / update_ms` is the most env steps per second it can take in (gRPC decoding and
-/// the checkpoint left out).
+/// the checkpoint left out). `minibatches`: `ppo.minibatches` (None: the defaults' size).
 pub fn bench_batch(
     env: EnvName,
     algo: Algo,
     updates: usize,
     path: UpdatePath,
     batch: usize,
+    minibatches: Option<usize>,
 ) -> LearnerBench {
     let batch = batch.div_ceil(FRAGMENT).max(1) * FRAGMENT;
     let config = TrainConfig::defaults(env, algo);
@@ -99,6 +100,7 @@ pub fn bench_batch(
     let mut ppo = config.ppo.clone();
     ppo.batch_steps = batch;
     ppo.update = path;
+    ppo.minibatches = minibatches.or(ppo.minibatches);
     let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
     // plain PPO on categorical states reads them one-hot, as the actors encode them
     let one_hot = match &states {
@@ -154,7 +156,7 @@ pub fn bench_batch(
         case: format!("{}/{}", env.as_str(), algo.as_str()),
         input,
         head: head_name,
-        minibatch: ppo.minibatch_size,
+        minibatch: ppo.minibatch_len(batch),
         epochs: epochs / n,
         batch,
         update_ms: elapsed * 1e3 / n as f64,

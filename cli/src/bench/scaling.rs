@@ -3,8 +3,11 @@
 //! starts them), every actor with the default 16 environments x 128 steps, so the learner's
 //! batch is one rollout of every actor (N x 2,048 steps: the batch grows with the actors, the
 //! learner counting them by their policy streams), with `rollouts_per_policy` 1 and 2 (2: the
-//! next rollout is collected while the learner updates). Beside the ladder, measured in the
-//! same run:
+//! next rollout is collected while the learner updates). From 2 actors on, two more rows keep
+//! the number of minibatches instead of their size (`ppo.minibatches` = 32, the 64 of one
+//! actor's 2,048 steps): the minibatch grows with the batch and its rows are split between
+//! the learner's threads; with `rollouts_per_policy` 2 and 3 (3: a whole round waits for the
+//! learner when it finishes, at lag 2). Beside the ladder, measured in the same run:
 //! - raw stepping: our environment with random actions on one thread, the unit of the ratios;
 //! - the learner's limit: env steps per second its PPO update takes in at each batch size
 //!   (synthetic fragments ingested in one process: validation, GAE, every epoch, the
@@ -29,6 +32,9 @@ use crate::train::train_one_process;
 
 /// Env steps of one actor's rollout under the defaults (16 x 128).
 const ROLLOUT: usize = 2048;
+/// `ppo.minibatches` of the rows that keep the count: HalfCheetah's minibatch of 64 in one
+/// actor's rollout.
+const MINIBATCHES: usize = 32;
 
 /// One measured set-up.
 #[derive(Debug, Clone, PartialEq)]
@@ -41,6 +47,8 @@ pub struct ScalingRow {
     pub batch: usize,
     /// Rollouts an actor sends per policy version (2: overlapped with the update).
     pub rollouts_per_policy: usize,
+    /// Samples per minibatch (64, or the batch over `ppo.minibatches`).
+    pub minibatch: usize,
     /// Steady-state env steps per second.
     pub steps_per_s: f64,
     /// The learner's limit at this batch (env steps per second its update takes in).
@@ -76,8 +84,22 @@ fn steady_state(dir: &Path) -> anyhow::Result<(f64, f64, (u64, u64))> {
     ))
 }
 
-fn config(actors: usize, rollouts_per_policy: usize, env_steps: u64, out: PathBuf) -> TrainConfig {
+/// One rung's settings.
+#[derive(Debug, Clone, Copy)]
+struct Rung {
+    actors: usize,
+    rollouts_per_policy: usize,
+    minibatches: Option<usize>,
+}
+
+fn config(rung: Rung, env_steps: u64, out: PathBuf) -> TrainConfig {
+    let Rung {
+        actors,
+        rollouts_per_policy,
+        minibatches,
+    } = rung;
     let mut c = TrainConfig::defaults(EnvName::HalfCheetah, Algo::Ppo);
+    c.ppo.minibatches = minibatches;
     c.actors = actors;
     c.rollouts_per_policy = rollouts_per_policy;
     c.env_steps = env_steps;
@@ -96,16 +118,18 @@ fn run_steps(actors: usize, quick: bool) -> u64 {
     }
 }
 
-/// The learner's limit at a batch of `actors` rollouts: env steps per second.
-pub fn learner_limit(actors: usize, quick: bool) -> f64 {
+/// The learner's limit at a batch of `actors` rollouts: env steps per second, and the
+/// minibatch it ran.
+fn learner_limit(actors: usize, minibatches: Option<usize>, quick: bool) -> (f64, usize) {
     let b = super::learner::bench_batch(
         EnvName::HalfCheetah,
         Algo::Ppo,
         if quick { 2 } else { 5 },
         UpdatePath::Fused,
         actors * ROLLOUT,
+        minibatches,
     );
-    b.batch as f64 / (b.update_ms / 1e3).max(1e-9)
+    (b.batch as f64 / (b.update_ms / 1e3).max(1e-9), b.minibatch)
 }
 
 /// Measures one process and every rung of the ladder.
@@ -119,30 +143,47 @@ pub fn measure(ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>>
 fn measure_in(root: &Path, ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>> {
     let exe = launch::current_exe()?;
     let mut rows = Vec::new();
-    let one = config(1, 1, run_steps(1, quick), root.join("one-process"));
+    let one_rung = Rung {
+        actors: 1,
+        rollouts_per_policy: 1,
+        minibatches: None,
+    };
+    let one = config(one_rung, run_steps(1, quick), root.join("one-process"));
     let mut progress = Progress::new(one.env_steps, true);
     train_one_process(&one, &mut progress)?;
     let (rate, lag, dropped) = steady_state(&one.out)?;
-    let limit_one = learner_limit(1, quick);
+    let (limit, minibatch) = learner_limit(1, None, quick);
     rows.push(ScalingRow {
         mode: "one process",
         actors: 1,
         batch: ROLLOUT,
         rollouts_per_policy: 1,
+        minibatch,
         steps_per_s: rate,
-        learner_limit: limit_one,
+        learner_limit: limit,
         lag_mean: lag,
         dropped,
     });
     for &actors in ladder {
-        let limit = learner_limit(actors, quick);
-        for rollouts in [1, 2] {
-            let c = config(
+        let mut rungs = vec![(1, None), (2, None)];
+        if actors > 1 {
+            rungs.extend([(2, Some(MINIBATCHES)), (3, Some(MINIBATCHES))]);
+        }
+        let mut limits = std::collections::HashMap::new();
+        for (rollouts_per_policy, minibatches) in rungs {
+            let rung = Rung {
                 actors,
-                rollouts,
-                run_steps(actors, quick),
-                root.join(format!("a{actors}-r{rollouts}")),
-            );
+                rollouts_per_policy,
+                minibatches,
+            };
+            let (limit, minibatch) = *limits
+                .entry(minibatches)
+                .or_insert_with(|| learner_limit(actors, minibatches, quick));
+            let name = match minibatches {
+                Some(n) => format!("a{actors}-r{rollouts_per_policy}-m{n}"),
+                None => format!("a{actors}-r{rollouts_per_policy}"),
+            };
+            let c = config(rung, run_steps(actors, quick), root.join(name));
             let mut progress = Progress::new(c.env_steps, true);
             launch::train_processes(
                 &c,
@@ -155,7 +196,8 @@ fn measure_in(root: &Path, ladder: &[usize], quick: bool) -> anyhow::Result<Vec<
                 mode: "processes",
                 actors,
                 batch: actors * ROLLOUT,
-                rollouts_per_policy: rollouts,
+                rollouts_per_policy,
+                minibatch,
                 steps_per_s: rate,
                 learner_limit: limit,
                 lag_mean: lag,
@@ -184,11 +226,12 @@ pub fn run(ladder: &[usize], quick: bool) -> String {
          {raw:.0} steps/s\n"
     );
     out.push_str(&format!(
-        "{:<12} {:>6} {:>6} {:>9} {:>12} {:>7} {:>13} {:>8} {:>6} {:>8} {:>9}\n",
+        "{:<12} {:>6} {:>6} {:>9} {:>9} {:>12} {:>7} {:>13} {:>8} {:>6} {:>8} {:>9}\n",
         "mode",
         "actors",
         "batch",
         "rollouts",
+        "minibatch",
         "env-steps/s",
         "/raw",
         "learner limit",
@@ -201,11 +244,12 @@ pub fn run(ladder: &[usize], quick: bool) -> String {
         Ok(rows) => {
             for r in rows {
                 out.push_str(&format!(
-                    "{:<12} {:>6} {:>6} {:>9} {:>12.0} {:>7.2} {:>13.0} {:>8.2} {:>6.2} {:>8} {:>9}\n",
+                    "{:<12} {:>6} {:>6} {:>9} {:>9} {:>12.0} {:>7.2} {:>13.0} {:>8.2} {:>6.2} {:>8} {:>9}\n",
                     r.mode,
                     r.actors,
                     r.batch,
                     r.rollouts_per_policy,
+                    r.minibatch,
                     r.steps_per_s,
                     r.steps_per_s / raw,
                     r.learner_limit,
@@ -221,7 +265,8 @@ pub fn run(ladder: &[usize], quick: bool) -> String {
     out.push_str(
         "batch: one rollout of every actor; rollouts: an actor may have out before a newer \
          policy answers them (2: the next rollout is collected while the learner updates); \
-         env-steps/s: between the first and the last update; /raw: over one core's raw \
+         minibatch: samples per gradient step (64, or the batch over ppo.minibatches = 32, \
+         split between the learner's threads); env-steps/s: between the first and the last update; /raw: over one core's raw \
          stepping; learner limit: env steps/s the PPO update takes in at this batch (in one \
          process, synthetic fragments; no actor count can pass it); lag: mean policy lag of \
          the fragments; dropped, dropped e: fragments dropped for lag, for an outdated \

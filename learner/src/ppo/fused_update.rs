@@ -83,7 +83,7 @@ pub(super) fn epochs(
     let lazy = config.pair_buckets > 0 && matches!(x, NetworkInput::Sparse(_));
     work.accumulate_input_rows = lazy;
     let mut touched = Vec::new();
-    let mb = config.minibatch_size.min(batch.len()).max(1);
+    let mb = config.minibatch_len(batch.len());
     let (mut grad_sum, mut grad_count) = (0.0, 0);
     let mut last = EpochStats::default();
     let mut epochs = 0;

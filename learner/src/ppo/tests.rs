@@ -313,6 +313,38 @@ fn a_batch_of_two_rollouts_updated_in_two_parts_publishes_one_version() {
     );
 }
 
+/// `ppo.minibatches` cuts a batch into that many minibatches: on a batch of 256, a count of 4
+/// is the same update as a `minibatch_size` of 64, on both paths.
+#[test]
+fn a_count_of_minibatches_is_a_size_of_the_batch_over_the_count() {
+    let head = PolicyHead::Gaussian { dim: 2 };
+    for update in [UpdatePath::Fused, UpdatePath::Burn] {
+        let sized = PpoConfig {
+            batch_steps: 4 * STEPS,
+            epochs: 2,
+            minibatch_size: 64,
+            update,
+            ..PpoConfig::default()
+        };
+        let counted = PpoConfig {
+            minibatch_size: 7,
+            minibatches: Some(4),
+            ..sized.clone()
+        };
+        let weights = |config: PpoConfig| {
+            let mut learner = Learner::new(config, 3, head, 1 << 20, 1, DeviceKind::Flex);
+            let mut rng = ChaCha8Rng::seed_from_u64(5);
+            for _ in 0..4 {
+                let f = crate::synthetic::fragment(3, head, 0, STEPS, &mut rng);
+                learner.ingest(f).expect("ingests");
+            }
+            assert_eq!(learner.version(), 1);
+            flat(&learner)
+        };
+        assert_eq!(weights(counted), weights(sized), "{update:?}");
+    }
+}
+
 /// A policy whose std the entropy bonus holds at its cap (log std 0.5 in E) is held under
 /// the falling cap over the run's last quarter, and ends the run at `entropy_log_std_final`.
 #[test]

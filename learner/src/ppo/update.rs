@@ -33,7 +33,7 @@ impl Learner {
         let n = batch.len();
         let device = self.policy.device().clone();
         let mut order: Vec<usize> = (0..n).collect();
-        let mb = self.config.minibatch_size.min(n).max(1);
+        let mb = self.config.minibatch_len(n);
         let clip = self.config.clip as f32;
         let (mut grad_sum, mut grad_count) = (0.0, 0);
         let mut last = EpochStats::default();

@@ -13,8 +13,15 @@ pub struct PpoConfig {
     pub batch_steps: usize,
     /// Passes over the batch per update.
     pub epochs: usize,
-    /// Steps per minibatch.
+    /// Steps per minibatch (unless `minibatches` is set).
     pub minibatch_size: usize,
+    /// Minibatches per epoch (None: the batch is cut into minibatches of `minibatch_size`).
+    /// Set, the minibatch is the batch over this count ([`PpoConfig::minibatch_len`]): the
+    /// batch is one rollout of every actor present, so the minibatch grows with the actors
+    /// and an update takes the same number of gradient steps whatever their count, each on
+    /// more samples (split between the learner's threads). With one actor of 2,048 steps, 32
+    /// is the same as a `minibatch_size` of 64.
+    pub minibatches: Option<usize>,
     /// Adam learning rate at the start.
     pub lr: f64,
     /// Anneal the learning rate linearly to 0 over the run.
@@ -122,6 +129,14 @@ pub struct PpoConfig {
     /// count. The later parts' ratios are taken against the log-probs their actors acted
     /// with (PPO's clip on the behaviour policy).
     pub max_update_steps: Option<usize>,
+    /// Environments of every actor that act with the deterministic policy during training
+    /// (a policy over action embeddings decoding to discrete actions; 0: none). Their step
+    /// is f of the mean, recorded in the fragment as that action's own embedding g(a) with
+    /// g(a)'s log-probability under the policy, so PPO weighs the deterministic choice by its
+    /// advantage: a mean whose action leaves the state unchanged or cycles, which the
+    /// sampled policy escapes at once, is pushed off that action where it costs. Their
+    /// episodes are left out of the training statistics (those stay the sampled policy's).
+    pub greedy_envs: usize,
     /// Which implementation runs the update: `fused` (host loss, gradients and Adam over
     /// GEMMs; the default) or `burn` (burn's autodiff graph; the reference, slower).
     pub update: UpdatePath,
@@ -145,6 +160,7 @@ impl Default for PpoConfig {
             batch_steps: 2048,
             epochs: 10,
             minibatch_size: 256,
+            minibatches: None,
             lr: 3e-4,
             anneal_lr: true,
             gamma: 0.99,
@@ -176,6 +192,7 @@ impl Default for PpoConfig {
             normalize_obs: false,
             max_policy_lag: 4,
             max_update_steps: None,
+            greedy_envs: 0,
             update: UpdatePath::Fused,
         }
     }
@@ -229,6 +246,17 @@ impl PpoConfig {
         Some(start + (end - start) * t)
     }
 
+    /// Samples per minibatch of a batch (or part) of `steps` samples: `minibatch_size`, or
+    /// `steps / minibatches` rounded up where `minibatches` is set; at least 1, at most
+    /// `steps`. The one rule both update paths and the benches use.
+    pub fn minibatch_len(&self, steps: usize) -> usize {
+        let len = match self.minibatches {
+            Some(count) => steps.div_ceil(count.max(1)),
+            None => self.minibatch_size,
+        };
+        len.min(steps).max(1)
+    }
+
     /// Whether a fresh policy learns from logged purchases (`logged_prior`,
     /// `logged_pretrain_epochs`).
     pub fn wants_logs(&self) -> bool {
@@ -241,6 +269,9 @@ impl PpoConfig {
             return Err(
                 "ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into(),
             );
+        }
+        if self.minibatches == Some(0) {
+            return Err("ppo.minibatches must be positive (or left out)".into());
         }
         for (key, lr) in [
             ("lr", self.lr),
@@ -389,6 +420,32 @@ mod tests {
             .validate()
             .expect_err("the fall must end after it starts");
         assert!(refused.contains("entropy_cap_anneal_to"), "{refused}");
+    }
+
+    #[test]
+    fn a_count_of_minibatches_grows_the_minibatch_with_the_batch() {
+        let sized = PpoConfig {
+            minibatch_size: 64,
+            ..PpoConfig::default()
+        };
+        assert_eq!(sized.minibatch_len(2048), 64);
+        assert_eq!(sized.minibatch_len(16_384), 64);
+        assert_eq!(sized.minibatch_len(40), 40);
+        let counted = PpoConfig {
+            minibatches: Some(32),
+            ..sized
+        };
+        assert_eq!(counted.minibatch_len(2048), 64);
+        assert_eq!(counted.minibatch_len(16_384), 512);
+        assert_eq!(counted.minibatch_len(100), 4);
+        assert_eq!(counted.minibatch_len(10), 1);
+        counted.validate().expect("a count is valid");
+        let zero = PpoConfig {
+            minibatches: Some(0),
+            ..counted
+        };
+        let refused = zero.validate().expect_err("no minibatches");
+        assert!(refused.contains("ppo.minibatches"), "{refused}");
     }
 
     #[test]
