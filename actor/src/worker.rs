@@ -257,28 +257,6 @@ impl ActorWorker {
         }
     }
 
-    /// How many of the environments act with the deterministic policy (the first ones;
-    /// `ppo.greedy_envs`, where the policy's actions are embeddings f decodes).
-    fn greedy_envs(&self) -> usize {
-        let decodes = self.config.algo.representation().decodes_actions()
-            && self.actions.num_discrete().is_some();
-        if decodes {
-            self.config.ppo.greedy_envs.min(self.envs.len())
-        } else {
-            0
-        }
-    }
-
-    /// The deterministic policy's steps for the first [`Self::greedy_envs`] environments, over
-    /// their samples in `points` and `logp` ([`jsae_agent::greedy::greedy_points`]).
-    fn act_greedily(&mut self, x: &[f32], points: &mut ActionBatch, logp: &mut [f32]) {
-        let rows = self.greedy_envs();
-        let x_dim = self.weights.acting_policy().input_dim();
-        if let (true, ActionBatch::Continuous { data, .. }) = (rows > 0, points) {
-            self.weights.act_greedily(&x[..rows * x_dim], data, logp);
-        }
-    }
-
     /// Maps sampled policy actions to environment actions: f for embeddings, then continuous
     /// actions clipped to the action box (the fragment keeps the unclipped sample, whose
     /// log-probability PPO scores; the embedder gets the action that was executed).
@@ -359,7 +337,6 @@ impl ActorWorker {
         let mut after = StateBatch::empty(&self.states);
         let threads = step_threads(self.config.step_threads, self.config.actors);
         let mut steps = vec![Step::default(); k];
-        let greedy_envs = self.greedy_envs();
         for _ in 0..rollout_steps {
             policy_actions.clear();
             env_actions.clear();
@@ -373,7 +350,6 @@ impl ActorWorker {
                     &mut policy_actions,
                     &mut logp,
                 );
-                self.act_greedily(&x, &mut policy_actions, &mut logp);
                 self.env_actions(&policy_actions, &mut env_actions);
             } else {
                 self.random_actions(k, &mut env_actions);
@@ -424,9 +400,7 @@ impl ActorWorker {
                     transitions.terminated.push(step.terminated);
                 }
                 let f = &mut fragments[i];
-                if let Some(ep) = finished
-                    && i >= greedy_envs
-                {
+                if let Some(ep) = finished {
                     f.episodes.push(ep);
                 }
                 if acting {

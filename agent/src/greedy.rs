@@ -23,7 +23,6 @@
 use std::collections::HashMap;
 
 use jsae_embedder::Embedding;
-use jsae_learner::Policy;
 use jsae_proto::ActionBatch;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -80,38 +79,6 @@ pub fn most_frequent(actions: &[u32]) -> Option<u32> {
         .into_iter()
         .max_by(|(_, (c1, k1)), (_, (c2, k2))| c1.cmp(c2).then(k2.cmp(k1)))
         .map(|(a, _)| a)
-}
-
-/// The deterministic policy's steps in training ([`jsae_proto::settings::PpoConfig::greedy_envs`]):
-/// every mean embedding in `means` (`[rows, d]`, as [`Policy::act`] gives it) is decoded by
-/// `embedding`'s f, and its action's own embedding g(a) is written over the row of
-/// `points` with g(a)'s log-probability under `policy` in `logp`, so the fragment records the
-/// point that decodes to the action taken. Rows beyond `means` are left alone; nothing is
-/// written for continuous actions.
-pub fn greedy_points(
-    embedding: &mut Embedding,
-    policy: &Policy,
-    means: &[f32],
-    points: &mut [f32],
-    logp: &mut [f32],
-) {
-    let dim = embedding.action_dim().max(1);
-    let mut decoded = ActionBatch::Discrete(Vec::with_capacity(means.len() / dim));
-    embedding.decode(means, &mut decoded);
-    let (ActionBatch::Discrete(actions), Some(table)) = (decoded, embedding.nearest()) else {
-        return;
-    };
-    for (((&a, mean), point), lp) in actions
-        .iter()
-        .zip(means.chunks_exact(dim))
-        .zip(points.chunks_exact_mut(dim))
-        .zip(logp.iter_mut())
-    {
-        for (j, p) in point.iter_mut().enumerate() {
-            *p = table.column(j)[a as usize];
-        }
-        *lp = policy.gaussian_log_prob(mean, point);
-    }
 }
 
 #[cfg(test)]

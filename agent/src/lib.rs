@@ -14,7 +14,7 @@ use jsae_embedder::Embedding;
 use jsae_learner::{Policy, policy_shape};
 use jsae_nn::RecordError;
 use jsae_proto::settings::TrainConfig;
-use jsae_proto::{ActionBatch, ActionSpace, EmbeddingSnapshot, PolicySnapshot, StateSpace};
+use jsae_proto::{ActionSpace, EmbeddingSnapshot, PolicySnapshot, StateSpace};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -96,23 +96,6 @@ impl Weights {
         self.embedding.as_mut()
     }
 
-    /// Overwrites the first `x.len() / input` rows of `points` (sampled action embeddings)
-    /// and `logp` with the deterministic policy's choices for the policy inputs `x`
-    /// ([`greedy::greedy_points`]); nothing without an embedding.
-    pub fn act_greedily(&mut self, x: &[f32], points: &mut [f32], logp: &mut [f32]) {
-        let Some(embedding) = self.embedding.as_mut() else {
-            return;
-        };
-        let mut means = ActionBatch::empty(&self.policy.head().action_space());
-        let mut unused = Vec::new();
-        // the mean draws nothing from the generator
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        self.policy.act(x, true, &mut rng, &mut means, &mut unused);
-        if let ActionBatch::Continuous { data, .. } = &means {
-            greedy::greedy_points(embedding, &self.policy, data, points, logp);
-        }
-    }
-
     /// The embedding version in use (0: none yet).
     pub fn embedding_version(&self) -> u64 {
         self.embedding.as_ref().map_or(0, Embedding::version)
@@ -171,73 +154,5 @@ impl Weights {
         })?;
         self.embedding = Some(embedding);
         Ok(())
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-    use jsae_embedder::EmbeddingModel;
-    use jsae_nn::{BurnDevice, DeviceKind};
-    use jsae_proto::settings::{Algo, EnvName};
-    use rand::Rng;
-
-    /// The deterministic policy's steps in training record, in place of their samples, a point
-    /// that decodes to f of the mean (the action's own embedding) with that point's
-    /// log-probability; the other rows keep their samples.
-    #[test]
-    fn greedy_steps_record_the_embedding_of_the_decoded_mean() {
-        let config = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
-        let (states, actions) = config.spaces();
-        let device = DeviceKind::Flex.device();
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let model = EmbeddingModel::new(
-            &config.embedding,
-            config.algo.representation(),
-            &states,
-            &actions,
-            &mut rng,
-            &device,
-        );
-        let snapshot = EmbeddingSnapshot {
-            version: 1,
-            bytes: model.to_bytes().expect("serialises"),
-            model_loss: 0.0,
-            decoder_loss: 0.0,
-            action_structure: None,
-        };
-        let mut weights = Weights::new(&config, &states, &actions, &device);
-        weights.load_embedding(&snapshot).expect("loads");
-        let input = weights.acting_policy().input_dim();
-        let d = config.embedding.action_dim;
-        let x: Vec<f32> = (0..4 * input)
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect();
-        let mut points = vec![0.25; 4 * d];
-        let mut logp = vec![7.0; 4];
-        weights.act_greedily(&x[..2 * input], &mut points, &mut logp);
-        let policy = weights.acting_policy().clone();
-        let mut means = ActionBatch::empty(&policy.head().action_space());
-        policy.act(&x[..2 * input], true, &mut rng, &mut means, &mut Vec::new());
-        let ActionBatch::Continuous { data: means, .. } = means else {
-            panic!("a Gaussian over E");
-        };
-        let embedding = weights.embedding_mut().expect("loaded");
-        let decode = |e: &mut Embedding, points: &[f32]| {
-            let mut out = ActionBatch::Discrete(Vec::new());
-            e.decode(points, &mut out);
-            out
-        };
-        assert_eq!(
-            decode(embedding, &points[..2 * d]),
-            decode(embedding, &means)
-        );
-        for row in 0..2 {
-            let (mean, point) = (&means[row * d..][..d], &points[row * d..][..d]);
-            assert_eq!(logp[row], policy.gaussian_log_prob(mean, point));
-            assert!(logp[row].is_finite() && logp[row] != 7.0);
-        }
-        assert_eq!(points[2 * d..].to_vec(), vec![0.25; 2 * d]);
-        assert_eq!(&logp[2..], &[7.0, 7.0]);
     }
 }

@@ -445,24 +445,6 @@ impl Policy {
         }
     }
 
-    /// The log-probability of `point` (`[dim]`) under the Gaussian head's N(`mean`, std^2)
-    /// (`mean` as [`Policy::act`] takes it, tanh-bounded where the head is); 0 for a
-    /// categorical head.
-    pub fn gaussian_log_prob(&self, mean: &[f32], point: &[f32]) -> f32 {
-        if !matches!(self.head, PolicyHead::Gaussian { .. }) {
-            return 0.0;
-        }
-        let log_std = self.log_std_values();
-        mean.iter()
-            .zip(point)
-            .zip(&log_std)
-            .map(|((&m, &p), &ls)| {
-                let z = (p - m) / ls.exp();
-                -0.5 * z * z - ls - HALF_LOG_2PI
-            })
-            .sum()
-    }
-
     /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of
     /// `x` (`[batch, input]`), appending them to `actions` and their log-probabilities to
     /// `logp`.

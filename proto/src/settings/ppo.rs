@@ -129,14 +129,6 @@ pub struct PpoConfig {
     /// count. The later parts' ratios are taken against the log-probs their actors acted
     /// with (PPO's clip on the behaviour policy).
     pub max_update_steps: Option<usize>,
-    /// Environments of every actor that act with the deterministic policy during training
-    /// (a policy over action embeddings decoding to discrete actions; 0: none). Their step
-    /// is f of the mean, recorded in the fragment as that action's own embedding g(a) with
-    /// g(a)'s log-probability under the policy, so PPO weighs the deterministic choice by its
-    /// advantage: a mean whose action leaves the state unchanged or cycles, which the
-    /// sampled policy escapes at once, is pushed off that action where it costs. Their
-    /// episodes are left out of the training statistics (those stay the sampled policy's).
-    pub greedy_envs: usize,
     /// Which implementation runs the update: `fused` (host loss, gradients and Adam over
     /// GEMMs; the default) or `burn` (burn's autodiff graph; the reference, slower).
     pub update: UpdatePath,
@@ -192,7 +184,6 @@ impl Default for PpoConfig {
             normalize_obs: false,
             max_policy_lag: 4,
             max_update_steps: None,
-            greedy_envs: 0,
             update: UpdatePath::Fused,
         }
     }

@@ -436,23 +436,6 @@ impl TrainConfig {
             return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
         }
         self.ppo.validate().map_err(ConfigError::Invalid)?;
-        if self.ppo.greedy_envs > 0 {
-            let (_, actions) = self.spaces();
-            if !self.algo.representation().decodes_actions() || actions.num_discrete().is_none() {
-                return bad(
-                    "ppo.greedy_envs needs a policy over action embeddings that f decodes to \
-                     discrete actions (--algo jsae on a discrete action space); set it to 0"
-                        .into(),
-                );
-            }
-            if self.ppo.greedy_envs >= self.envs_per_actor {
-                return bad(format!(
-                    "ppo.greedy_envs ({}) must be less than envs_per_actor ({}): the others \
-                     sample",
-                    self.ppo.greedy_envs, self.envs_per_actor
-                ));
-            }
-        }
         // settings that only the recommender's categorical PPO policy has a use for
         let recommender_ppo = self.env == EnvName::Recommender && self.algo == Algo::Ppo;
         let items = "purchase logs and a categorical policy over their items";
@@ -550,25 +533,6 @@ impl TrainConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn greedy_envs_need_a_decoded_discrete_policy_and_a_sampling_env_left() {
-        let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
-        c.ppo.greedy_envs = 2;
-        c.validate().expect("JSAE over 512 discrete actions");
-        c.ppo.greedy_envs = c.envs_per_actor;
-        let reason = c.validate().expect_err("every env greedy").to_string();
-        assert!(reason.contains("ppo.greedy_envs"), "{reason}");
-        for (env, algo) in [
-            (EnvName::GridworldDiscrete, Algo::Ppo),
-            (EnvName::HalfCheetah, Algo::Jsae),
-        ] {
-            let mut c = TrainConfig::defaults(env, algo);
-            c.ppo.greedy_envs = 1;
-            let reason = c.validate().expect_err("no decoded actions").to_string();
-            assert!(reason.contains("ppo.greedy_envs"), "{reason}");
-        }
-    }
 
     #[test]
     fn a_file_overrides_defaults_and_unknown_keys_are_refused() {
