@@ -335,7 +335,11 @@ impl ActorWorker {
         let mut cut_x = Vec::new();
         let mut cut_envs = Vec::new();
         let mut after = StateBatch::empty(&self.states);
-        let threads = step_threads(self.config.step_threads, self.config.actors);
+        let threads = step_threads(
+            self.config.step_threads,
+            self.config.actors,
+            !self.config.one_process,
+        );
         let mut steps = vec![Step::default(); k];
         for _ in 0..rollout_steps {
             policy_actions.clear();

@@ -112,11 +112,14 @@ pub fn step_all(
 }
 
 /// Threads for `step_all`: `configured`, or when 0 the machine's cores shared among the
-/// `actors` of a run that start on it together (at least one each): 8 actors of 16
-/// environments on 16 cores each step on 2 threads, not on 16 that take turns.
-pub fn step_threads(configured: usize, actors: usize) -> usize {
+/// `actors` of a run that start on it together, less one core for the learner's update when
+/// it runs `beside` them in its own process (at least one each): on 2 cores one actor steps
+/// on one thread while the learner updates on the other, and 8 actors on 16 cores step on
+/// one thread each, not on 16 each that take turns.
+pub fn step_threads(configured: usize, actors: usize, beside: bool) -> usize {
+    let cores = std::thread::available_parallelism().map_or(1, usize::from);
     match configured {
-        0 => (std::thread::available_parallelism().map_or(1, usize::from) / actors.max(1)).max(1),
+        0 => (cores.saturating_sub(usize::from(beside)) / actors.max(1)).max(1),
         n => n,
     }
 }

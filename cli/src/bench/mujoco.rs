@@ -139,7 +139,7 @@ pub fn bench_robot(env: EnvName, envs: usize, quick: bool) -> MujocoRates {
         actor_ppo: actor_rate(env, Algo::Ppo, envs, 1, steps),
         actor_jsae: actor_rate(env, Algo::Jsae, envs, 1, steps),
         actor_jsae_cores: actor_rate(env, Algo::Jsae, envs, 0, steps),
-        cores: jsae_envs::step_threads(0, 1),
+        cores: jsae_envs::step_threads(0, 1, false),
         gymnasium: match gymnasium_rate(gym_id, steps) {
             Ok(r) => Some(r),
             Err(e) => {
