@@ -30,6 +30,13 @@ use crate::EmbedderTrainer;
 /// backpressure reaches the actors while a training round runs.
 const QUEUE_BATCHES: usize = 2;
 
+/// The HTTP/2 receive window of the embedder's calls, per call and per connection: what an
+/// actor's transitions may have in flight beyond the queue. With hyper's default (about 1 MB,
+/// some 20 gridworld batches of 2,048 transitions an actor) 4 actors ran 100k transitions and
+/// more ahead of the embedder's training, which then published 7 versions in a 500k-step run
+/// where one process publishes 24, and the policy learned on a stale embedding.
+const RECEIVE_WINDOW: u32 = 64 * 1024;
+
 /// Largest transition batch accepted, in transitions.
 pub const MAX_BATCH_TRANSITIONS: usize = 65_536;
 
@@ -286,11 +293,17 @@ pub async fn serve(
     let server = pb::embedder_server::EmbedderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    net::serve(server, listener, &security, async move {
-        shutdown.await;
-        tracing::info!("embedder: shutting down");
-        let _ = stop_tx.send(true);
-    })
+    net::serve_with_window(
+        server,
+        listener,
+        &security,
+        Some(RECEIVE_WINDOW),
+        async move {
+            shutdown.await;
+            tracing::info!("embedder: shutting down");
+            let _ = stop_tx.send(true);
+        },
+    )
     .await?;
     // The server (and with it every queue sender) is gone: the thread drains and stops.
     tokio::task::spawn_blocking(move || trainer.join())
