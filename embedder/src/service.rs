@@ -293,7 +293,7 @@ pub async fn serve(
     let server = pb::embedder_server::EmbedderServer::new(service)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    net::serve_with_window(
+    net::serve(
         server,
         listener,
         &security,

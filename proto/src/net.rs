@@ -198,35 +198,13 @@ pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5
 /// twice this, and its streams end (an actor asked for the evaluation is then replaced).
 pub const KEEPALIVE: std::time::Duration = std::time::Duration::from_secs(20);
 
-/// [`serve_with_window`] with hyper's default flow-control windows.
-pub async fn serve<S>(
-    service: S,
-    listener: TcpListener,
-    security: &Security,
-    shutdown: impl std::future::Future<Output = ()> + Send,
-) -> Result<(), ServeError>
-where
-    S: tonic::codegen::Service<
-            tonic::codegen::http::Request<tonic::body::Body>,
-            Response = tonic::codegen::http::Response<tonic::body::Body>,
-            Error = std::convert::Infallible,
-        > + tonic::server::NamedService
-        + Clone
-        + Send
-        + Sync
-        + 'static,
-    S::Future: Send + 'static,
-{
-    serve_with_window(service, listener, security, None, shutdown).await
-}
-
 /// Serves `service` on `listener` beside `grpc.health.v1.Health` (reporting it SERVING) and
 /// server reflection, until `shutdown` resolves. Every service of the project is served so.
 /// `security` decides TLS and the token, which every service but health requires.
 /// `receive_window`: the HTTP/2 flow-control window of each call and of each connection, in
 /// bytes (None: hyper's default, about 1 MB): how much a client may send that the service has
 /// not read, so a small one carries the service's backpressure to its clients.
-pub async fn serve_with_window<S>(
+pub async fn serve<S>(
     service: S,
     listener: TcpListener,
     security: &Security,

@@ -119,7 +119,7 @@ pub async fn serve(
     let server = pb::recommender_server::RecommenderServer::new(service)
         .max_decoding_message_size(MAX_REQUEST_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES);
-    let result = net::serve(server, listener, &security, shutdown).await;
+    let result = net::serve(server, listener, &security, None, shutdown).await;
     tasks.abort_all();
     result?;
     Ok(())

@@ -250,7 +250,7 @@ pub async fn serve(
         }
         let _ = stop_tx.send(true);
     };
-    net::serve(server, listener, &options.security, end).await?;
+    net::serve(server, listener, &options.security, None, end).await?;
     if !thread.is_finished() && !publish_rx.borrow().finished {
         // interrupted: the thread ends when its queue closes (the service is gone)
         tracing::info!("learner: interrupted before the end of the run");
