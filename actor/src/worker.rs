@@ -61,7 +61,6 @@ pub struct ActorWorker {
     weights: Weights,
     running: Vec<Running>,
     eval_env: Option<Box<dyn Env>>,
-    visits: std::collections::HashMap<u64, u32>,
     current: StateBatch,
     env_steps: u64,
     /// This worker's random nonzero number ([`jsae_proto::random_id`]): its fragments' step
@@ -113,7 +112,6 @@ impl ActorWorker {
             config: config.clone(),
             eval_env: Some(eval_env),
             running: vec![Running::default(); envs.len()],
-            visits: std::collections::HashMap::new(),
             envs,
             env_rngs,
             rng: ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1)),
@@ -205,11 +203,12 @@ impl ActorWorker {
         Ok(())
     }
 
-    /// The exploration bonus for reaching row `i` of `states` (0 when off).
-    fn exploration_bonus(&mut self, states: &StateBatch, i: usize) -> f32 {
+    /// The visit key of row `i` of `states` for the exploration bonus, which the learner
+    /// counts over all actors (`jsae_learner`'s `visits`); None when the bonus is off.
+    fn visit_key(&self, states: &StateBatch, i: usize) -> Option<u64> {
         let e = &self.config.exploration;
         if e.bonus <= 0.0 {
-            return 0.0;
+            return None;
         }
         let mut key: u64 = 0xcbf2_9ce4_8422_2325;
         let mut mix = |v: u64| key = (key ^ v).wrapping_mul(0x0100_0000_01b3);
@@ -221,9 +220,7 @@ impl ActorWorker {
                 .iter()
                 .for_each(|&v| mix((f64::from(v) * e.bins_per_unit).floor() as i64 as u64)),
         }
-        let n = self.visits.entry(key).or_insert(0);
-        *n += 1;
-        (e.bonus / f64::from(*n).sqrt()) as f32
+        Some(key)
     }
 
     /// Whether actions come from the policy (else uniformly at random).
@@ -324,6 +321,7 @@ impl ActorWorker {
                 last_next_x: Vec::new(),
                 episodes: Vec::new(),
                 actor_incarnation: self.incarnation,
+                visit_keys: Vec::new(),
             })
             .collect();
         let mut x = Vec::new();
@@ -365,10 +363,10 @@ impl ActorWorker {
             step_all(&mut self.envs, &env_actions, &mut steps, threads);
             for (i, &step) in steps.iter().enumerate() {
                 self.envs[i].push_state(&mut next);
-                let bonus = if acting {
-                    self.exploration_bonus(&next, i)
+                let visit = if acting {
+                    self.visit_key(&next, i)
                 } else {
-                    0.0
+                    None
                 };
                 let run = &mut self.running[i];
                 if let Some(r) = recorded.as_mut() {
@@ -411,7 +409,8 @@ impl ActorWorker {
                     f.x.extend_from_slice(&x[i * x_dim..(i + 1) * x_dim]);
                     f.actions.push_row_of(&policy_actions, i);
                     f.logp.push(logp[i]);
-                    f.rewards.push(step.reward as f32 + bonus);
+                    f.rewards.push(step.reward as f32);
+                    f.visit_keys.extend(visit);
                     f.terminated.push(step.terminated);
                     f.truncated.push(step.truncated);
                 }

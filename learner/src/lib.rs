@@ -11,7 +11,8 @@
 //! minibatch loss and gradients on the host, checked against burn's autodiff; the default
 //! update path), `metrics`
 //! (named scalars into a sink: metrics.csv), `tensorboard` (the same scalars as TensorBoard event
-//! files; `RunMetrics` writes both), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests). The settings are
+//! files; `RunMetrics` writes both), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests), `visits` (the exploration
+//! bonus's visit counts over all actors). The settings are
 //! `jsae_proto::settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
@@ -27,6 +28,7 @@ mod record;
 pub mod service;
 pub mod synthetic;
 pub mod tensorboard;
+pub mod visits;
 
 pub use jsae_proto::settings::{PpoConfig, UpdatePath};
 pub use metrics::{

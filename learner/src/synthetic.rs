@@ -51,5 +51,6 @@ pub fn fragment(
         last_next_x: uniform(x_dim, -3.0, 3.0),
         episodes: Vec::new(),
         actor_incarnation: 1,
+        visit_keys: Vec::new(),
     }
 }

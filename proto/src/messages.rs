@@ -90,6 +90,10 @@ pub struct RolloutFragment {
     /// ([`crate::random_id`]): `actor_env_steps` counts within one incarnation, and a
     /// restarted actor reusing its id is another incarnation.
     pub actor_incarnation: u64,
+    /// With the exploration bonus on (`exploration.bonus`): the key of every step's next
+    /// state, one per reward, for the learner's visit counts over all actors; else empty.
+    #[serde(default)]
+    pub visit_keys: Vec<u64>,
 }
 
 impl RolloutFragment {

@@ -210,7 +210,11 @@ impl RolloutFragment {
         )?;
         check_finite("truncated_next_x", &self.truncated_next_x)?;
         check_len("last_next_x", x_dim, self.last_next_x.len())?;
-        check_finite("last_next_x", &self.last_next_x)
+        check_finite("last_next_x", &self.last_next_x)?;
+        if !self.visit_keys.is_empty() {
+            check_len("visit_keys", n, self.visit_keys.len())?;
+        }
+        Ok(())
     }
 }
 
@@ -239,6 +243,7 @@ mod tests {
             last_next_x: vec![0.0, 0.0],
             episodes: vec![],
             actor_incarnation: 1,
+            visit_keys: Vec::new(),
         }
     }
 
@@ -273,6 +278,17 @@ mod tests {
         f.truncated_next_x.clear();
         assert!(f.validate(2, &space(), 1e6).is_err());
         assert!(fragment().validate(3, &space(), 1e6).is_err());
+        let mut f = fragment();
+        f.visit_keys = vec![7];
+        assert!(matches!(
+            f.validate(2, &space(), 1e6),
+            Err(ValidationError::Length {
+                field: "visit_keys",
+                ..
+            })
+        ));
+        f.visit_keys = vec![7, 8];
+        assert_eq!(f.validate(2, &space(), 1e6), Ok(()), "one key a step");
     }
 
     #[test]

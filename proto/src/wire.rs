@@ -193,6 +193,7 @@ impl From<RolloutFragment> for pb::RolloutFragment {
             last_next_x: f.last_next_x,
             episodes: f.episodes.iter().map(Into::into).collect(),
             actor_incarnation: f.actor_incarnation,
+            visit_keys: f.visit_keys,
         }
     }
 }
@@ -218,6 +219,7 @@ impl TryFrom<pb::RolloutFragment> for RolloutFragment {
             last_next_x: f.last_next_x,
             episodes: episodes(f.episodes)?,
             actor_incarnation: f.actor_incarnation,
+            visit_keys: f.visit_keys,
         })
     }
 }

@@ -90,6 +90,7 @@ proptest! {
             last_next_x: (0..x_dim).map(value).collect(),
             episodes: vec![],
             actor_incarnation: seed | 1,
+            visit_keys: Vec::new(),
         };
         prop_assert_eq!(f.validate(x_dim, &ActionSpace::Discrete { n: 8 }, BOUND), Ok(()));
         let wire = pb::RolloutFragment::from(f.clone()).encode_to_vec();
@@ -117,6 +118,7 @@ proptest! {
             last_next_x: vec![0.0],
             episodes: vec![],
             actor_incarnation: 1,
+            visit_keys: Vec::new(),
         };
         let ok = f.validate(1, &ActionSpace::Discrete { n: 2 }, BOUND).is_ok();
         prop_assert_eq!(ok, reward.is_finite() && reward.abs() <= BOUND);

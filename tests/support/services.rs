@@ -230,6 +230,7 @@ pub fn fragment(x_dim: usize, n: usize) -> RolloutFragment {
         last_next_x: vec![0.5; x_dim],
         episodes: vec![],
         actor_incarnation: 1,
+        visit_keys: Vec::new(),
     }
 }
 

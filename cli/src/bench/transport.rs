@@ -65,6 +65,7 @@ fn fragments(n: usize, steps: usize) -> Vec<RolloutFragment> {
             last_next_x: vec![0.0; 8],
             episodes: vec![],
             actor_incarnation: 1,
+            visit_keys: Vec::new(),
         })
         .collect()
 }

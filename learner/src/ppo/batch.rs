@@ -555,6 +555,7 @@ mod tests {
             last_next_x: state(0, 3),
             episodes: Vec::new(),
             actor_incarnation: 1,
+            visit_keys: Vec::new(),
         };
         let mut out = Vec::new();
         next_purchases(&f, x_dim, n, &mut out);

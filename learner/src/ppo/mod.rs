@@ -41,6 +41,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::PpoConfig;
 use crate::normalise::RewardScaler;
 use crate::policy::{Policy, PolicyHead};
+use crate::visits::VisitBonus;
 use batch::{Batch, BatchBuffers};
 pub use credits::ClaimWentBack;
 use credits::StepCredits;
@@ -87,6 +88,8 @@ pub struct Learner {
     episodes: Vec<EpisodeStat>,
     reward_scaler: Option<RewardScaler>,
     updates: u64,
+    /// The exploration bonus's visit counts over all actors (`exploration.bonus`; None: off).
+    visits: Option<VisitBonus>,
 }
 
 impl Learner {
@@ -128,6 +131,7 @@ impl Learner {
             episodes: Vec::new(),
             reward_scaler,
             updates: 0,
+            visits: None,
         }
     }
 
@@ -147,6 +151,7 @@ impl Learner {
             config.device,
         );
         learner.credits = StepCredits::new(config.random_play_allowance());
+        learner.visits = VisitBonus::new(config.exploration.bonus);
         learner
     }
 
@@ -270,9 +275,10 @@ impl Learner {
     }
 
     /// Validates a fragment (shapes, finite values, rewards within `ppo.max_abs_reward`, a
-    /// step claim that does not go back) and buffers it, crediting its env steps; runs an
-    /// update when the batch is complete.
-    pub fn ingest(&mut self, fragment: RolloutFragment) -> Result<Ingested, LearnerError> {
+    /// step claim that does not go back) and buffers it, crediting its env steps and adding
+    /// the exploration bonus of its visits (counted over all actors); runs an update when
+    /// the batch is complete.
+    pub fn ingest(&mut self, mut fragment: RolloutFragment) -> Result<Ingested, LearnerError> {
         fragment.validate(
             self.policy.input_dim(),
             &self.policy.head().action_space(),
@@ -285,6 +291,9 @@ impl Learner {
             fragment.len() as u64,
         )?;
         self.episodes.extend_from_slice(&fragment.episodes);
+        if let Some(visits) = self.visits.as_mut() {
+            visits.apply(&mut fragment);
+        }
         let lag = self.version.saturating_sub(fragment.policy_version);
         if lag > self.config.max_policy_lag {
             self.dropped_lag += 1;

@@ -1,6 +1,6 @@
 //! A learner resumed from its checkpoint is the learner that wrote it: Adam's moments and
 //! step, the reward scaler, the observation normaliser, the counters, the step accounts and
-//! the minibatch shuffler come back equal, and the next update from either gives the same
+//! the minibatch shuffler and the exploration bonus's visit counts come back equal, and the next update from either gives the same
 //! weights, on both update paths. A learner given the weights alone does not.
 
 use jsae_nn::DeviceKind;
@@ -13,6 +13,7 @@ use super::Learner;
 use super::credits::StepCredits;
 use crate::fused::HostPolicy;
 use crate::policy::PolicyHead;
+use crate::visits::VisitBonus;
 use crate::{PpoConfig, UpdatePath};
 
 const STEPS: usize = 64;
@@ -39,6 +40,7 @@ fn learner(update: UpdatePath, seed: u64) -> Learner {
     };
     let mut l = Learner::new(config, X_DIM, HEAD, 100_000, seed, DeviceKind::Flex);
     l.credits = StepCredits::new(ALLOWANCE);
+    l.visits = VisitBonus::new(0.1);
     l
 }
 
@@ -56,6 +58,7 @@ fn round(number: u64, version: u64, rng: &mut ChaCha8Rng) -> Vec<RolloutFragment
             for r in &mut f.rewards {
                 *r *= 5.0 * actor as f32;
             }
+            f.visit_keys = (0..STEPS as u64).map(|t| t % 7 + actor).collect();
             fragments.push(f);
         }
     }
@@ -100,8 +103,10 @@ fn round_trip(update: UpdatePath) {
             l.lag().clone(),
             l.embedding_version(),
             l.credits.clone(),
+            l.visits.as_ref().map(VisitBonus::counts),
         )
     };
+    assert!(first.visits.as_ref().is_some_and(|v| v.states() == 8));
     assert_eq!(counters(&resumed), counters(&first));
     assert_eq!(first.env_steps(), 2 * 300 + 3 * 4 * STEPS as u64);
     let shuffler = |l: &Learner| (l.rng.get_seed(), l.rng.get_word_pos());

@@ -2,7 +2,8 @@
 //! which hold the observation normaliser's statistics too): the update count, the run's wall
 //! seconds, the step accounts, the lag and drop counters, the newest embedding version, the
 //! minibatch shuffler's position, the reward scaler's statistics and the optimisers' state
-//! (the fused path's Adam moments and step; burn's optimiser record where that path runs). A
+//! (the fused path's Adam moments and step; burn's optimiser record where that path runs) and
+//! the exploration bonus's visit counts. A
 //! learner that restores them updates exactly as the one that wrote them would have.
 //!
 //! Layout (`state_codec`): the magic `JSAELRN\0`, a format number, then the fields in the
@@ -23,8 +24,8 @@ use jsae_proto::settings::UpdatePath;
 
 /// The first bytes of a learner's training state.
 const MAGIC: &[u8; 8] = b"JSAELRN\0";
-/// The layout written below.
-const FORMAT: u32 = 1;
+/// The layout written below (1: before the visit counts, still read).
+const FORMAT: u32 = 2;
 
 /// A training state read back, whole, before any of it is applied.
 #[derive(Debug)]
@@ -40,6 +41,7 @@ struct TrainingState {
     scaler: Option<ScalerState>,
     adam: AdamMoments,
     burn_optimiser: Vec<u8>,
+    visits: Vec<(u64, u32)>,
 }
 
 fn write_moments(w: &mut StateWriter, moments: &[Vec<f32>]) {
@@ -62,7 +64,7 @@ impl TrainingState {
             return Err(StateError("not a learner's training state".into()));
         }
         let format = r.u32("format")?;
-        if format != FORMAT {
+        if !(1..=FORMAT).contains(&format) {
             return Err(StateError(format!(
                 "format {format}; this build reads format {FORMAT}"
             )));
@@ -120,6 +122,14 @@ impl TrainingState {
             moment_2: read_moments(&mut r, "Adam second moments")?,
         };
         let burn_optimiser = r.bytes("burn optimiser")?;
+        let mut visits = Vec::new();
+        if format >= 2 {
+            let n = r.count(12, "visit counts")?;
+            visits.reserve(n);
+            for _ in 0..n {
+                visits.push((r.u64("visited state")?, r.u32("visits")?));
+            }
+        }
         r.end()?;
         Ok(Self {
             updates,
@@ -133,6 +143,7 @@ impl TrainingState {
             scaler,
             adam,
             burn_optimiser,
+            visits,
         })
     }
 }
@@ -191,6 +202,9 @@ impl Learner {
         self.fused.set_adam_moments(s.adam);
         if let Some(optim) = burn_optimiser {
             self.optim = Adam(optim);
+        }
+        if let Some(visits) = self.visits.as_mut() {
+            visits.restore(&s.visits);
         }
         Ok(Some(s.wall_seconds))
     }
@@ -251,6 +265,12 @@ impl Learner {
             UpdatePath::Fused => Vec::new(),
         };
         w.bytes(&burn_optimiser);
+        let visits = self.visits.as_ref().map(|v| v.counts()).unwrap_or_default();
+        w.u64(visits.len() as u64);
+        for (key, n) in visits {
+            w.u64(key);
+            w.u32(n);
+        }
         Ok(w.finish())
     }
 }

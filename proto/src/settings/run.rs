@@ -76,8 +76,9 @@ pub struct TrainConfig {
 }
 
 /// A count-based exploration bonus: the learner sees `r + bonus / sqrt(N(s'))`, where `N`
-/// counts this actor's visits to the next state (categorical states by index, real states
-/// binned). Environment returns, evaluation and the embedder's transitions are unchanged.
+/// counts all actors' visits to the next state (categorical states by index, real states
+/// binned; the actors send the keys, the learner counts). Environment returns, evaluation and
+/// the embedder's transitions are unchanged.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default, deny_unknown_fields)]
 pub struct ExplorationConfig {
