@@ -9,11 +9,17 @@ use std::collections::HashMap;
 
 use jsae_proto::RolloutFragment;
 
+/// The most distinct states counted (some 100 MB of counts). The keys come from the wire, so
+/// an actor sending ever new ones must not grow the learner without bound: past the limit a
+/// state not counted yet gets a first visit's bonus and is not stored.
+pub const MAX_STATES: usize = 1 << 22;
+
 /// Visits per state key, over all actors.
-#[derive(Debug, Clone, Default)]
+#[derive(Debug, Clone)]
 pub struct VisitBonus {
     bonus: f32,
     counts: HashMap<u64, u32>,
+    limit: usize,
 }
 
 impl VisitBonus {
@@ -22,6 +28,7 @@ impl VisitBonus {
         (bonus > 0.0).then(|| Self {
             bonus: bonus as f32,
             counts: HashMap::new(),
+            limit: MAX_STATES,
         })
     }
 
@@ -32,9 +39,19 @@ impl VisitBonus {
             return;
         }
         for (&key, reward) in fragment.visit_keys.iter().zip(&mut fragment.rewards) {
-            let n = self.counts.entry(key).or_insert(0);
-            *n = n.saturating_add(1);
-            *reward += self.bonus / (*n as f32).sqrt();
+            let n = match self.counts.get(&key).copied() {
+                Some(n) => {
+                    let n = n.saturating_add(1);
+                    self.counts.insert(key, n);
+                    n
+                }
+                None if self.counts.len() < self.limit => {
+                    self.counts.insert(key, 1);
+                    1
+                }
+                None => 1,
+            };
+            *reward += self.bonus / (n as f32).sqrt();
         }
     }
 
@@ -109,6 +126,18 @@ mod tests {
         v.apply(&mut f);
         assert_eq!(f.rewards, vec![0.5; 3]);
         assert_eq!(v.states(), 0);
+    }
+
+    #[test]
+    fn past_the_limit_new_states_are_not_stored() {
+        let mut v = VisitBonus::new(0.1).expect("on");
+        v.limit = 2;
+        let mut f = fragment(0, vec![1, 2, 3, 3, 1]);
+        v.apply(&mut f);
+        assert_eq!(v.counts(), vec![(1, 2), (2, 1)]);
+        let first = -0.01 + 0.1;
+        assert!((f.rewards[2] - first).abs() < 1e-6 && (f.rewards[3] - first).abs() < 1e-6);
+        assert!((f.rewards[4] - (-0.01 + 0.1 / 2f32.sqrt())).abs() < 1e-6);
     }
 
     #[test]
