@@ -59,6 +59,7 @@ fn rpcs() -> Vec<Rpc> {
         actor_id: 3,
         evaluates: true,
         rollout_steps: 64,
+        envs: 4,
     }
     .encode_to_vec();
     let rpc = |service, path, shape, valid| Rpc {

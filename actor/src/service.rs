@@ -91,6 +91,8 @@ struct Links {
     reports: mpsc::Sender<pb::EvalReport>,
     /// How many times the embedder's stream opened again after it was lost.
     embedder_lost: Arc<AtomicU64>,
+    /// The environments the learner last said to step (its `Share`; 0: all).
+    share: Arc<AtomicU64>,
 }
 
 /// Steps until the run ends or `stop`, recording every transition when asked; the recording
@@ -281,6 +283,15 @@ fn step_until_done(
             std::thread::sleep(Duration::from_millis(1));
             continue;
         }
+        let before = worker.active_envs();
+        let stepped = worker.set_active_envs(links.share.load(Ordering::Relaxed) as usize);
+        if stepped != before {
+            tracing::info!(
+                "actor {}: steps {stepped} of its {} environments (its share of the learner's batch)",
+                options.id,
+                config.envs_per_actor
+            );
+        }
         let rollout = worker.collect(config.rollout_len);
         if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
             r.write(&rollout.transitions, steps)?;
@@ -331,6 +342,7 @@ pub async fn run(
     let (fragments_tx, fragments_rx) = mpsc::channel::<pb::RolloutFragment>(16);
     let (reports_tx, mut reports_rx) = mpsc::channel::<pb::EvalReport>(2);
     let embedder_lost = Arc::new(AtomicU64::new(0));
+    let share = Arc::new(AtomicU64::new(0));
     let mut tasks = tokio::task::JoinSet::new();
     let security = options.security.clone();
     let learner_channel = security.channel(&options.learner)?;
@@ -368,7 +380,9 @@ pub async fn run(
             actor_id: id,
             evaluates: true,
             rollout_steps: (config.envs_per_actor * config.rollout_len) as u64,
+            envs: u32::try_from(config.envs_per_actor).unwrap_or(0),
         };
+        let told = share.clone();
         tasks.spawn(async move {
             client::watch_policy(&watching, &url, hello, |event| {
                 let go_on = match event {
@@ -390,6 +404,10 @@ pub async fn run(
                     PolicyEvent::Finish => {
                         let _ = control_tx.send(Control::Finish);
                         false
+                    }
+                    PolicyEvent::Share(envs) => {
+                        told.store(u64::from(envs), Ordering::Relaxed);
+                        true
                     }
                 };
                 async move { go_on }
@@ -439,6 +457,7 @@ pub async fn run(
                 fragments: fragments_tx,
                 reports: reports_tx,
                 embedder_lost,
+                share,
             };
             stepping_loop(&config, &options, &links, &stop_flag)
         })

@@ -70,6 +70,9 @@ pub struct ActorWorker {
     /// Episodes each environment started before its current one.
     episodes: Vec<u64>,
     recording: bool,
+    /// The environments stepped in a rollout, the first ones (the learner's share for this
+    /// actor, all by default); the others wait mid-episode. `current` holds their states.
+    active: usize,
 }
 
 impl std::fmt::Debug for ActorWorker {
@@ -124,7 +127,29 @@ impl ActorWorker {
             greedy: GreedyDecode::default(),
             episodes: vec![0; config.envs_per_actor],
             recording: false,
+            active: config.envs_per_actor,
         })
+    }
+
+    /// Steps the first `envs` environments from the next rollout on (at least one, at most
+    /// all; 0: all), the others keeping their episodes where they are until a larger share.
+    /// Returns the number now stepped.
+    pub fn set_active_envs(&mut self, envs: usize) -> usize {
+        let all = self.envs.len();
+        let envs = if envs == 0 { all } else { envs.clamp(1, all) };
+        if envs != self.active {
+            self.active = envs;
+            self.current = StateBatch::empty(&self.states);
+            for env in &self.envs[..envs] {
+                env.push_state(&mut self.current);
+            }
+        }
+        envs
+    }
+
+    /// The environments a rollout steps ([`ActorWorker::set_active_envs`]).
+    pub fn active_envs(&self) -> usize {
+        self.active
     }
 
     /// The actor's id.
@@ -278,9 +303,9 @@ impl ActorWorker {
         }
     }
 
-    /// Steps every environment `rollout_steps` times.
+    /// Steps every active environment `rollout_steps` times.
     pub fn collect(&mut self, rollout_steps: usize) -> Rollout {
-        let k = self.envs.len();
+        let k = self.active;
         let acting = self.acting();
         let record_transitions =
             self.recording || self.config.algo.representation().needs_embedder();
@@ -360,7 +385,7 @@ impl ActorWorker {
             cut_states.clear();
             cut_envs.clear();
             after.clear();
-            step_all(&mut self.envs, &env_actions, &mut steps, threads);
+            step_all(&mut self.envs[..k], &env_actions, &mut steps, threads);
             for (i, &step) in steps.iter().enumerate() {
                 self.envs[i].push_state(&mut next);
                 let visit = if acting {

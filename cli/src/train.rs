@@ -138,6 +138,10 @@ pub fn train_one_process_with(
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
         .collect::<Result<_, _>>()?;
+    // each steps its share of a shared batch, as the learner service would tell it
+    for (actor, envs) in actors.iter_mut().zip(config.actor_envs()) {
+        actor.set_active_envs(envs);
+    }
     let (states, actions) = (
         actors[0].state_space().clone(),
         actors[0].action_space().clone(),

@@ -19,6 +19,9 @@ pub enum PolicyEvent {
     Evaluate(pb::EvalRequest),
     /// The run is over.
     Finish,
+    /// Step this many of the actor's environments in each rollout from now on (its share of
+    /// the learner's batch; 0: all of them).
+    Share(u32),
 }
 
 /// Follows the embedder at `url`: every complete snapshot goes to `sink`; returns when `sink`
@@ -130,6 +133,7 @@ pub async fn watch_policy<F, Fut>(
                         },
                         Some(Event::Evaluate(request)) => PolicyEvent::Evaluate(request),
                         Some(Event::Finish(_)) => PolicyEvent::Finish,
+                        Some(Event::Share(share)) => PolicyEvent::Share(share.envs),
                         None => continue,
                     };
                     if !sink(event).await {

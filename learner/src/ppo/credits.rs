@@ -7,8 +7,8 @@
 //! steps credited, and the steps its fragments held. A fragment raises its account's credit
 //! towards its claim, but an account is never credited more than its fragments' steps plus
 //! what it drew from a run-wide allowance for random play (the steps an actor plays before it
-//! sends fragments: the pre-training budget and one rollout round of every actor,
-//! `TrainConfig::random_play_allowance`; 0 for a run without pre-training). What an account
+//! sends fragments: the pre-training budget and one rollout of all environments of every
+//! actor, `TrainConfig::random_play_allowance`; 0 for a run without pre-training). What an account
 //! drew goes back to the allowance as its fragments catch up with its credit, so a round of
 //! fragments that all claim the round's total is counted whole and only the random steps
 //! stay drawn.

@@ -136,7 +136,8 @@ impl Learner {
     }
 
     /// The learner of a run: its policy shape from the environment's spaces and the
-    /// algorithm, one batch = one rollout round of all actors.
+    /// algorithm, one batch = one rollout round of the run's actors
+    /// ([`jsae_proto::settings::TrainConfig::round_steps`]).
     pub fn for_run(config: &jsae_proto::settings::TrainConfig) -> Self {
         let (states, actions) = config.spaces();
         let (input, head) = crate::policy_shape(config, &states, &actions);
@@ -329,9 +330,9 @@ impl Learner {
         self.pending_steps
     }
 
-    /// The env steps of the next batch (the learner service sets it to one rollout of every
-    /// actor present as actors come and go); updates at once, with the report, when what is
-    /// buffered already makes the new batch.
+    /// The env steps of the next batch (the learner service sets it to its actors' rollouts,
+    /// or their shares of a shared batch, as actors come and go); updates at once, with the
+    /// report, when what is buffered already makes the new batch.
     pub fn set_batch_steps(&mut self, steps: usize) -> Result<Option<UpdateReport>, LearnerError> {
         self.config.batch_steps = steps.max(1);
         if self.pending.is_empty() || self.pending_steps < self.config.batch_steps {

@@ -7,7 +7,7 @@
 use jsae_proto::wire::pb;
 use tokio::sync::mpsc;
 
-use super::grpc::Input;
+use super::grpc::{Announced, Input};
 use super::roster::Roster;
 
 /// The open evaluation request and the actors that could take it over.
@@ -91,17 +91,17 @@ pub(super) struct OpenStream {
 }
 
 impl OpenStream {
-    /// Announces the stream of an actor whose rollouts deliver `rollout_steps` env steps
-    /// (0: it did not say); None when the training thread is gone.
+    /// Announces the stream of an actor, with what it said of itself; None when the training
+    /// thread is gone.
     pub(super) async fn announce(
         actor: u64,
-        rollout_steps: u64,
+        announced: Announced,
         queue: &mpsc::Sender<Input>,
     ) -> Option<Self> {
         queue
             .send(Input::Stream {
                 actor,
-                opened: Some(rollout_steps),
+                opened: Some(announced),
             })
             .await
             .ok()?;
@@ -143,7 +143,7 @@ mod tests {
         open: bool,
     ) -> Option<pb::EvalRequest> {
         if open {
-            r.open(actor, 1);
+            r.open(actor, 1, 0);
         } else {
             r.close(actor);
         }

@@ -2,9 +2,11 @@
 //! finite values, rewards within `ppo.max_abs_reward`, a policy version this learner has
 //! published, an embedding version its embedder has published) and queues it for the
 //! training thread; `WatchPolicy` streams snapshots, the evaluation request (to the asked
-//! actor's stream only) and the end of the run, and tells the training thread which actors'
-//! streams are open; `ReportEval` takes the asked actor's evaluation.
+//! actor's stream only), each actor's share of a shared batch (to its own stream) and the
+//! end of the run, and tells the training thread which actors' streams are open;
+//! `ReportEval` takes the asked actor's evaluation.
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
@@ -36,19 +38,38 @@ pub(super) enum Input {
     Embedding(EmbeddingSnapshot),
     /// An evaluation report and the request it answers.
     Eval(EvalReport, u64),
-    /// An actor's policy stream opened (with the env steps of its rollouts, 0 if it did not
-    /// say) or closed (None).
-    Stream { actor: u64, opened: Option<u64> },
+    /// An actor's policy stream opened (with what it announced) or closed (None).
+    Stream {
+        actor: u64,
+        opened: Option<Announced>,
+    },
     /// Time passes: an overdue round is closed (sent by a timer while the service runs).
     Tick,
 }
 
-/// What the policy stream carries: the current snapshot, an evaluation request, the end.
+/// What an actor says of itself when it opens its policy stream (`WatchRequest`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Announced {
+    /// The env steps one rollout of all its environments delivers (0: it did not say).
+    pub(super) rollout_steps: u64,
+    /// Its environments (0: it did not say, and steps all of them whatever its share).
+    pub(super) envs: u32,
+}
+
+/// How long a new actor's stream waits for its share of a shared batch before the first
+/// snapshot goes out (else its first rollout steps all of its environments).
+pub const SHARE_GRACE: Duration = Duration::from_secs(2);
+
+/// What the policy stream carries: the current snapshot, an evaluation request, each
+/// actor's share of a shared batch, the end.
 #[derive(Debug, Clone, Default)]
 pub(super) struct PolicyState {
     pub(super) snapshot: Option<Arc<PolicySnapshot>>,
     /// The open evaluation request; only the stream of the actor it names carries it.
     pub(super) evaluate: Option<pb::EvalRequest>,
+    /// The environments each present actor steps (empty unless the batch is shared); only
+    /// the stream of the actor named carries its share.
+    pub(super) shares: BTreeMap<u64, u32>,
     pub(super) finished: bool,
 }
 
@@ -66,6 +87,9 @@ pub struct LearnerService {
     pub(super) queue: mpsc::Sender<Input>,
     pub(super) state: watch::Receiver<PolicyState>,
     pub(super) stopping: watch::Receiver<bool>,
+    /// Whether the batch is shared among the actors (`batch_envs`): a new actor's stream
+    /// then waits up to [`SHARE_GRACE`] for its share.
+    pub(super) shares_batch: bool,
 }
 
 impl LearnerService {
@@ -170,19 +194,48 @@ impl pb::learner_server::Learner for LearnerService {
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
         let watch = request.into_inner();
-        // an actor's stream is counted while it is open: the batch is one rollout of every
-        // actor present (`roster`), and an actor that dies while asked for the evaluation is
-        // replaced
+        // an actor's stream is counted while it is open: the batch is its share of a shared
+        // batch, or one rollout of it (`roster`), and an actor that dies while asked for the
+        // evaluation is replaced
         // (none when the training thread is gone: the run is over, and the stream still
         // brings the last snapshot and the end)
         let actor = if watch.evaluates {
-            OpenStream::announce(watch.actor_id, watch.rollout_steps, &self.queue).await
+            let announced = Announced {
+                rollout_steps: watch.rollout_steps,
+                envs: watch.envs,
+            };
+            OpenStream::announce(watch.actor_id, announced, &self.queue).await
         } else {
             None
         };
-        let (mut sent_version, mut sent_eval) = (None, None);
+        if self.shares_batch && watch.envs > 0 && actor.is_some() {
+            let (mut state, mut stopping) = (self.state.clone(), self.stopping.clone());
+            let told = |s: &PolicyState| s.finished || s.shares.contains_key(&watch.actor_id);
+            tokio::select! {
+                _ = tokio::time::timeout(SHARE_GRACE, state.wait_for(told)) => {}
+                _ = stopping.wait_for(|&stop| stop) => {}
+            }
+        }
+        let (mut sent_version, mut sent_eval, mut sent_share) = (None, None, None);
         let stream = net::watch_stream(self.state.clone(), &self.stopping, move |now| {
             let mut events = Vec::new();
+            // the share first: it applies to the rollouts under the snapshot that follows. A
+            // stream opens with one (0, all: the batch is not shared, or not yet known), so an
+            // actor told a share by an earlier learner does not keep it; an absent actor is
+            // left its last.
+            if let Some(a) = &actor {
+                let envs = match (now.shares.get(&a.actor()), sent_share) {
+                    (Some(&envs), _) => Some(envs),
+                    (None, None) => Some(0),
+                    (None, Some(_)) => None,
+                };
+                if let Some(envs) = envs
+                    && sent_share != Some(envs)
+                {
+                    sent_share = Some(envs);
+                    events.push(Event::Share(pb::Share { envs }));
+                }
+            }
             if let Some(s) = &now.snapshot
                 && sent_version != Some(s.version)
             {

@@ -159,6 +159,7 @@ pub async fn serve(
         queue: queue_tx.clone(),
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
+        shares_batch: config.shared_batch_envs().is_some(),
     };
     // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
     let (hold_tx, mut hold_rx) = watch::channel(false);

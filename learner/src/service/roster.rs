@@ -4,7 +4,10 @@
 //! started (`jsae train`, by hand, compose, an orchestrator): no setting says how many actors
 //! a run has. The learner's batch is one rollout of every actor present, so with
 //! `rollouts_per_policy = 1` each update answers exactly the rollouts its actors sent and
-//! the policy lag stays 0 as actors join and leave.
+//! the policy lag stays 0 as actors join and leave. Where the batch is shared
+//! (`batch_envs`), each present actor that said how many environments it has is given its
+//! share of them ([`share_envs`]), and its rollout counts with its share only: the batch
+//! stays `batch_envs` environments' rollouts whoever is present.
 //!
 //! An actor that is connected but sends nothing (a link cut while its connection still looks
 //! open, an actor stuck or refused) must not hold every update back: a round whose first
@@ -15,10 +18,14 @@
 //! update and send more under the same version; where they still do (a loaded machine) and
 //! their extra rollouts fill the round past its deadline, the silent actors are left out the
 //! same way (`training::round_completed`). With no actor present (none announced itself, or
-//! all are absent) the batch is the settings' `actors x envs_per_actor x rollout_len`.
+//! all are absent) the batch is the settings' one round (`TrainConfig::round_steps`).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
+
+use jsae_proto::settings::share_envs;
+
+use super::grpc::Announced;
 
 /// The most env steps one actor may say its rollout delivers (a larger claim would hold
 /// every round until its deadline).
@@ -33,6 +40,8 @@ struct Member {
     /// Open policy streams (an actor reconnecting may have two for a moment).
     streams: usize,
     rollout_steps: u64,
+    /// Its environments (0: not said; it steps all of them, whatever the batch).
+    envs: u32,
     /// Left out of the batch: it delivered nothing to a round that closed at its deadline.
     absent: bool,
 }
@@ -46,6 +55,15 @@ pub(super) struct Roster {
     fallback: (usize, u64),
     delivered: BTreeSet<u64>,
     clock: RoundClock,
+    /// `batch_envs` where the batch is shared among the actors present.
+    shared: Option<usize>,
+    /// Each present sharing actor's environments to step from the next round on (kept as
+    /// members come, go, fall silent or are back: [`Roster::reshare`]).
+    next_shares: BTreeMap<u64, u32>,
+    /// The shares the round being gathered was collected with: they change only when a round
+    /// ends (an actor that joins gets its own at once), so every actor's rollout counts with
+    /// the share it stepped.
+    shares: BTreeMap<u64, u32>,
 }
 
 impl Roster {
@@ -58,7 +76,16 @@ impl Roster {
             fallback: (fallback_batch.max(1), default_rollout.max(1)),
             delivered: BTreeSet::new(),
             clock: RoundClock::new(floor),
+            shared: None,
+            next_shares: BTreeMap::new(),
+            shares: BTreeMap::new(),
         }
+    }
+
+    /// The batch shared among the actors present: `batch_envs` environments' rollouts.
+    pub(super) fn sharing(mut self, batch_envs: Option<usize>) -> Self {
+        self.shared = batch_envs;
+        self
     }
 
     /// How long the round being gathered may wait for its last fragment.
@@ -85,6 +112,7 @@ impl Roster {
             return missing;
         }
         self.new_round();
+        self.round_ended();
         self.clock.completed(now);
         Vec::new()
     }
@@ -100,20 +128,41 @@ impl Roster {
         Some(self.close_overdue())
     }
 
-    /// An actor's policy stream opened; `rollout_steps` as it announced them.
-    pub(super) fn open(&mut self, actor: u64, rollout_steps: u64) {
+    /// An actor's policy stream opened, with what it announced.
+    pub(super) fn announced(&mut self, actor: u64, announced: Announced) {
+        self.open(actor, announced.rollout_steps, announced.envs);
+    }
+
+    /// An actor's policy stream opened; `rollout_steps` and `envs` as it announced them (from
+    /// the wire: environments that do not divide its own stated rollout count as not said,
+    /// and the actor then steps all of them).
+    pub(super) fn open(&mut self, actor: u64, rollout_steps: u64, envs: u32) {
         let steps = match rollout_steps {
             0 => self.fallback.1,
             n => n.min(MAX_ROLLOUT_STEPS),
         };
+        let divides = envs > 0 && rollout_steps == steps && steps % u64::from(envs) == 0;
+        let envs = if divides { envs } else { 0 };
         let m = self.members.entry(actor).or_insert(Member {
             streams: 0,
             rollout_steps: steps,
+            envs,
             absent: false,
         });
         m.streams += 1;
         m.rollout_steps = steps;
+        m.envs = envs;
         m.absent = false;
+        self.reshare();
+        // a new actor steps its share from its first rollout, in this round
+        match self.next_shares.get(&actor) {
+            Some(&share) => {
+                self.shares.entry(actor).or_insert(share);
+            }
+            None => {
+                self.shares.remove(&actor);
+            }
+        }
     }
 
     /// One of an actor's policy streams closed.
@@ -122,8 +171,10 @@ impl Roster {
             m.streams = m.streams.saturating_sub(1);
             if m.streams == 0 {
                 self.members.remove(&actor);
+                self.shares.remove(&actor);
             }
         }
+        self.reshare();
     }
 
     /// Whether `actor` has a policy stream open.
@@ -145,13 +196,47 @@ impl Roster {
         (self.members.len(), present)
     }
 
-    /// The batch: one rollout of every present actor (the fallback with none).
+    /// The environments each actor steps in the round being gathered where the batch is
+    /// shared (those that did not say how many they have step all of them and are not named).
+    pub(super) fn shares(&self) -> &BTreeMap<u64, u32> {
+        &self.shares
+    }
+
+    /// Shares the batch again among the actors present, for the next round.
+    fn reshare(&mut self) {
+        let Some(total) = self.shared else {
+            return;
+        };
+        let sharing: Vec<(u64, usize)> = self
+            .members
+            .iter()
+            .filter(|(_, m)| !m.absent && m.envs > 0)
+            .map(|(&a, m)| (a, m.envs as usize))
+            .collect();
+        let capacities: Vec<usize> = sharing.iter().map(|&(_, envs)| envs).collect();
+        let shares = share_envs(total, &capacities);
+        self.next_shares = sharing
+            .iter()
+            .zip(shares)
+            .map(|(&(a, _), share)| (a, share as u32))
+            .collect();
+    }
+
+    /// The batch: one rollout of every present actor, of its share of the environments where
+    /// the batch is shared (the fallback with none present).
     pub(super) fn batch_steps(&self) -> usize {
+        let shares = &self.shares;
         let steps: u64 = self
             .members
-            .values()
-            .filter(|m| !m.absent)
-            .map(|m| m.rollout_steps)
+            .iter()
+            .filter(|(_, m)| !m.absent)
+            .map(|(a, m)| match shares.get(a) {
+                Some(&share) => {
+                    let len = (m.rollout_steps / u64::from(m.envs)).max(1);
+                    u64::from(share) * len
+                }
+                None => m.rollout_steps,
+            })
             .sum();
         if steps == 0 {
             self.fallback.0
@@ -164,8 +249,11 @@ impl Roster {
     /// again.
     pub(super) fn delivered(&mut self, actor: u64) {
         self.delivered.insert(actor);
-        if let Some(m) = self.members.get_mut(&actor) {
+        if let Some(m) = self.members.get_mut(&actor)
+            && m.absent
+        {
             m.absent = false;
+            self.reshare();
         }
     }
 
@@ -176,7 +264,7 @@ impl Roster {
 
     /// Whether the round waits on an actor present that has delivered nothing to it (with
     /// none present, a round is the settings' batch and has no one to wait for).
-    fn waits_on_someone(&self) -> bool {
+    pub(super) fn waits_on_someone(&self) -> bool {
         self.members
             .iter()
             .any(|(a, m)| !m.absent && !self.delivered.contains(a))
@@ -193,7 +281,23 @@ impl Roster {
             }
         }
         self.delivered.clear();
+        self.reshare();
+        self.round_ended();
         missing
+    }
+
+    /// A round ended: the next one is collected with the new shares (an absent actor keeps
+    /// its last, which it steps until it is told another).
+    fn round_ended(&mut self) {
+        let mut shares = self.next_shares.clone();
+        for (a, m) in &self.members {
+            if let Some(&last) = self.shares.get(a)
+                && m.absent
+            {
+                shares.insert(*a, last);
+            }
+        }
+        self.shares = shares;
     }
 }
 
@@ -255,28 +359,80 @@ mod tests {
         let mut r = Roster::new(2048, 512, Duration::ZERO);
         assert_eq!(r.batch_steps(), 2048, "nobody yet: the settings' batch");
         assert!(!r.waits_on_someone());
-        r.open(1, 1000);
-        r.open(2, 0);
+        r.open(1, 1000, 0);
+        r.open(2, 0, 0);
         assert_eq!(
             r.batch_steps(),
             1512,
             "actor 2 did not say: the default rollout"
         );
-        r.open(2, 0);
+        r.open(2, 0, 0);
         r.close(2);
         assert_eq!(r.batch_steps(), 1512, "actor 2 still has a stream");
         r.close(2);
         assert_eq!(r.batch_steps(), 1000);
-        r.open(3, u64::MAX);
+        r.open(3, u64::MAX, 0);
         assert_eq!(r.batch_steps(), 1000 + MAX_ROLLOUT_STEPS as usize);
         assert_eq!(r.counts(), (2, 2));
     }
 
     #[test]
+    fn a_shared_batch_is_split_among_the_actors_present_from_round_to_round() {
+        let now = Instant::now();
+        let shares = |r: &Roster| r.shares().clone().into_iter().collect::<Vec<_>>();
+        let mut r = Roster::new(2048, 2048, Duration::ZERO).sharing(Some(16));
+        r.open(1, 16 * 128, 16);
+        assert_eq!((shares(&r), r.batch_steps()), (vec![(1, 16)], 2048));
+        // joining mid-round: each steps its own share at once, the others keep theirs until
+        // the round ends, so every rollout counts with the share it was stepped with
+        r.open(2, 16 * 128, 16);
+        r.open(3, 16 * 128, 16);
+        assert_eq!(shares(&r), vec![(1, 16), (2, 8), (3, 5)]);
+        assert_eq!(r.batch_steps(), (16 + 8 + 5) * 128);
+        assert!(r.completed(now).is_empty());
+        assert_eq!(shares(&r), vec![(1, 6), (2, 5), (3, 5)]);
+        assert_eq!(r.batch_steps(), 2048);
+        // one that did not say its environments steps them all, on top; so does one whose
+        // environments do not divide its rollout
+        r.open(4, 1000, 0);
+        assert_eq!(r.batch_steps(), 3048);
+        r.close(4);
+        r.open(4, 1000, 3);
+        assert_eq!(r.batch_steps(), 3048);
+        assert!(!r.shares().contains_key(&4));
+        r.close(4);
+        // one absent: the others take its share from the next round; it keeps its last
+        r.delivered(1);
+        r.delivered(2);
+        assert_eq!(r.close_overdue(), vec![3]);
+        assert_eq!(shares(&r), vec![(1, 8), (2, 8), (3, 5)]);
+        assert_eq!(r.batch_steps(), 2048);
+        // back mid-round with a rollout of its last share
+        r.delivered(3);
+        assert_eq!(r.batch_steps(), (8 + 8 + 5) * 128);
+        assert!(r.completed(now).is_empty());
+        assert_eq!(shares(&r), vec![(1, 6), (2, 5), (3, 5)]);
+        // leaving mid-round: out of this round's batch at once
+        r.close(1);
+        assert_eq!(r.batch_steps(), 10 * 128);
+        // an actor of 4 environments: the others take the rest
+        r.open(5, 4 * 128, 4);
+        assert!(r.completed(now).is_empty());
+        assert_eq!(shares(&r), vec![(2, 6), (3, 6), (5, 4)]);
+        assert_eq!(r.batch_steps(), 2048);
+        // not shared: whole rollouts
+        let mut r = Roster::new(2048, 2048, Duration::ZERO);
+        r.open(1, 2048, 16);
+        r.open(2, 2048, 16);
+        assert!(r.shares().is_empty());
+        assert_eq!(r.batch_steps(), 4096);
+    }
+
+    #[test]
     fn an_actor_silent_through_an_overdue_round_is_absent_until_it_delivers() {
         let mut r = Roster::new(2048, 100, Duration::ZERO);
-        r.open(1, 100);
-        r.open(2, 100);
+        r.open(1, 100, 0);
+        r.open(2, 100, 0);
         r.delivered(1);
         assert!(r.waits_on_someone());
         assert_eq!(r.close_overdue(), vec![2]);

@@ -83,13 +83,34 @@ impl LearnerLoop {
     }
 
     /// Sets the learner's batch to the roster's; records the update when what is buffered
-    /// already makes it.
+    /// already makes it. The actors' shares go out first, so that each rollout under the new
+    /// snapshot is collected with them.
     fn resize_batch(&mut self, roster: &mut Roster, now: Instant) -> anyhow::Result<()> {
+        self.publish_shares(roster);
         if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
             round_completed(roster, now);
+            self.publish_shares(roster);
             self.record_update(report)?;
         }
         Ok(())
+    }
+
+    /// Tells each actor its share of a shared batch where the shares changed (a round ended,
+    /// or an actor joined); called before the snapshot of the update that ends a round goes
+    /// out, so the next round's rollouts are stepped with them.
+    fn publish_shares(&mut self, roster: &Roster) {
+        let shares = roster.shares().clone();
+        if self.publish.borrow().shares == shares {
+            return;
+        }
+        let said: Vec<String> = shares.iter().map(|(a, n)| format!("{a}: {n}")).collect();
+        tracing::info!(
+            "the batch's {} environments shared among the actors present (actor: environments) \
+             {{{}}}",
+            self.config.shared_batch_envs().unwrap_or(0),
+            said.join(", ")
+        );
+        self.publish.send_modify(|s| s.shares = shares);
     }
 
     /// Records an update: the checkpoint, then its metrics row (a stop between them leaves a
@@ -137,13 +158,14 @@ impl LearnerLoop {
             self.config.round_steps(),
             (self.config.envs_per_actor * self.config.rollout_len) as u64,
             Duration::from_millis(self.config.policy_wait_ms) / 2,
-        );
+        )
+        .sharing(self.config.shared_batch_envs());
         while let Some(input) = queue.blocking_recv() {
             match input {
                 Input::Embedding(s) => self.embedding = Some(s),
                 Input::Stream { actor, opened } => {
                     match opened {
-                        Some(steps) => roster.open(actor, steps),
+                        Some(announced) => roster.announced(actor, announced),
                         None => roster.close(actor),
                     }
                     self.telemetry.observe_actors(roster.counts());
@@ -165,6 +187,7 @@ impl LearnerLoop {
                             deadline.as_secs_f64(),
                             self.learner.pending_steps()
                         );
+                        self.publish_shares(&roster);
                         self.learner.set_batch_steps(roster.batch_steps())?;
                         if let Some(report) = self.learner.close_round()? {
                             self.record_update(report)?;
@@ -179,6 +202,7 @@ impl LearnerLoop {
                     match self.learner.ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
                             round_completed(&mut roster, now);
+                            self.publish_shares(&roster);
                             self.record_update(*report)?;
                         }
                         Ok(Ingested::Buffered) => {
@@ -222,6 +246,7 @@ impl LearnerLoop {
                 }
                 Input::Eval(..) => {}
             }
+            self.publish_shares(&roster);
         }
         anyhow::bail!("the learner stopped before the run ended")
     }

@@ -5,6 +5,7 @@
 //! flags) and validation.
 
 mod algo;
+mod batch;
 mod device;
 mod embedding;
 mod envs;
@@ -15,6 +16,7 @@ mod ppo;
 mod run;
 
 pub use algo::{Algo, Representation};
+pub use batch::share_envs;
 pub use device::DeviceKind;
 pub use embedding::EmbeddingConfig;
 pub use envs::{

@@ -16,11 +16,11 @@ pub struct PpoConfig {
     /// Steps per minibatch (unless `minibatches` is set).
     pub minibatch_size: usize,
     /// Minibatches per epoch (None: the batch is cut into minibatches of `minibatch_size`).
-    /// Set, the minibatch is the batch over this count ([`PpoConfig::minibatch_len`]): the
-    /// batch is one rollout of every actor present, so the minibatch grows with the actors
-    /// and an update takes the same number of gradient steps whatever their count, each on
-    /// more samples (split between the learner's threads). With one actor of 2,048 steps, 32
-    /// is the same as a `minibatch_size` of 64.
+    /// Set, the minibatch is the batch over this count ([`PpoConfig::minibatch_len`]): where
+    /// the batch is one rollout of every actor present (the default; unless `batch_envs`),
+    /// the minibatch grows with the actors and an update takes the same number of gradient
+    /// steps whatever their count, each on more samples (split between the learner's
+    /// threads). With one actor of 2,048 steps, 32 is the same as a `minibatch_size` of 64.
     pub minibatches: Option<usize>,
     /// Adam learning rate at the start.
     pub lr: f64,
@@ -122,7 +122,7 @@ pub struct PpoConfig {
     /// Fragments produced by a policy more than this many versions old are dropped.
     pub max_policy_lag: u64,
     /// The most env steps one PPO update takes (None: a whole batch). A larger batch (one
-    /// rollout of every actor present) is optimised in consecutive passes over parts of about
+    /// rollout of every actor present, where it grows with them) is optimised in consecutive passes over parts of about
     /// this size, in the order the fragments arrived, each a full update (every epoch, its
     /// own advantage normalisation) starting from the last, before the batch's one policy is
     /// published: as many clipped steps per env step as with one actor, whatever the actor

@@ -27,6 +27,13 @@ pub struct TrainConfig {
     pub actors: usize,
     /// Environments per actor, stepped together with batched inference.
     pub envs_per_actor: usize,
+    /// Environments one batch is gathered from, shared among the actors present: each
+    /// steps its share of its own (the learner tells it), so the batch stays the same as
+    /// actors join and leave. Unset (or 0): every actor steps all of its environments and
+    /// the batch is one rollout of every actor present, growing with them. See
+    /// [`TrainConfig::shared_batch_envs`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch_envs: Option<usize>,
     /// Threads an actor steps its environments on (0: the machine's cores over `actors`, less
     /// one for the learner's update as separate processes, at least one; at most one per
     /// environment). Worth it where a step costs far more than a thread hand-off (MuJoCo).
@@ -113,6 +120,8 @@ pub struct ConfigFile {
     pub actors: Option<usize>,
     /// See [`TrainConfig`].
     pub envs_per_actor: Option<usize>,
+    /// See [`TrainConfig`].
+    pub batch_envs: Option<usize>,
     /// See [`TrainConfig`].
     pub step_threads: Option<usize>,
     /// See [`TrainConfig`].
@@ -316,6 +325,7 @@ impl TrainConfig {
             env_steps,
             actors: 1,
             envs_per_actor: 16,
+            batch_envs: None,
             step_threads: if env.is_mujoco() { 0 } else { 1 },
             rollout_len: 128,
             rollouts_per_policy: if env.is_mujoco() { 2 } else { 1 },
@@ -366,6 +376,7 @@ impl TrainConfig {
         c.env_steps = parsed.env_steps.unwrap_or(c.env_steps);
         c.actors = parsed.actors.unwrap_or(c.actors);
         c.envs_per_actor = parsed.envs_per_actor.unwrap_or(c.envs_per_actor);
+        c.batch_envs = parsed.batch_envs.or(c.batch_envs);
         c.step_threads = parsed.step_threads.unwrap_or(c.step_threads);
         c.rollout_len = parsed.rollout_len.unwrap_or(c.rollout_len);
         c.rollouts_per_policy = parsed.rollouts_per_policy.unwrap_or(c.rollouts_per_policy);
@@ -409,11 +420,6 @@ impl TrainConfig {
         self.algo.representation().needs_embedder()
             && self.env_steps > 0
             && env_steps as f64 >= share * self.env_steps as f64
-    }
-
-    /// Env steps per rollout round of all actors (the learner's batch).
-    pub fn round_steps(&self) -> usize {
-        self.actors * self.envs_per_actor * self.rollout_len
     }
 
     /// Checks everything; the reason names the bad setting.
@@ -486,15 +492,14 @@ impl TrainConfig {
                 ));
             }
         }
-        // one round of every actor is the learner's batch: past the budget, the run would
+        // one round of the run's actors is the learner's batch: past the budget, the run would
         // silently take more steps than asked for in one update
         if self.round_steps() as u64 > self.env_steps {
             return bad(format!(
-                "env_steps ({}) is less than one batch: actors x envs_per_actor x rollout_len = \
-                 {} x {} x {} = {} steps; lower --envs or rollout_len, or raise --env-steps",
+                "env_steps ({}) is less than one batch: {} environments x rollout_len {} = {} \
+                 steps; lower --envs, batch_envs or rollout_len, or raise --env-steps",
                 self.env_steps,
-                self.actors,
-                self.envs_per_actor,
+                self.actor_envs().iter().sum::<usize>(),
                 self.rollout_len,
                 self.round_steps()
             ));
@@ -506,27 +511,6 @@ impl TrainConfig {
     /// budget for this environment's action space).
     pub fn pretrain_budget(&self) -> usize {
         self.embedding.pretrain_budget(&self.spaces().1)
-    }
-
-    /// Env steps each actor plays at random before the first embedding (its share of the
-    /// pre-training budget; 0 for a run without an embedder): it then waits for the
-    /// embedding. The actor sends no fragment for these steps.
-    pub fn random_play_share(&self) -> u64 {
-        if !self.algo.representation().needs_embedder() {
-            return 0;
-        }
-        self.pretrain_budget().div_ceil(self.actors.max(1)) as u64
-    }
-
-    /// Env steps of random play the learner credits beyond the fragments' own lengths, over
-    /// the whole run: the pre-training budget plus one rollout round of every actor (each
-    /// actor stops only after the round that reaches its share); 0 for a run without an
-    /// embedder, whose actors play no random steps.
-    pub fn random_play_allowance(&self) -> u64 {
-        if !self.algo.representation().needs_embedder() {
-            return 0;
-        }
-        (self.pretrain_budget() + self.round_steps()) as u64
     }
 
     /// The configuration as TOML (what `config.toml` holds).
