@@ -10,24 +10,21 @@ use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_tests::services::*;
 
+/// A column of the run's metrics.csv, one value per update.
+fn metric(out: &std::path::Path, column: &str) -> Vec<f64> {
+    let table = MetricsTable::read(&RunDir::new(out).metrics_csv()).expect("metrics.csv");
+    table.column(column).into_iter().flatten().collect()
+}
+
 /// Env steps between consecutive metrics rows.
 fn batches(out: &std::path::Path) -> Vec<u64> {
-    let table = MetricsTable::read(&RunDir::new(out).metrics_csv()).expect("metrics.csv");
-    let steps: Vec<u64> = table
-        .column("env_steps")
-        .into_iter()
-        .flatten()
-        .map(|v| v as u64)
-        .collect();
-    steps.windows(2).map(|w| w[1] - w[0]).collect()
+    let steps = metric(out, "env_steps");
+    steps.windows(2).map(|w| (w[1] - w[0]) as u64).collect()
 }
 
 fn lag_max(out: &std::path::Path) -> f64 {
-    let table = MetricsTable::read(&RunDir::new(out).metrics_csv()).expect("metrics.csv");
-    table
-        .column("policy_lag_max")
+    metric(out, "policy_lag_max")
         .into_iter()
-        .flatten()
         .fold(0.0, f64::max)
 }
 
@@ -157,12 +154,7 @@ async fn a_killed_actor_of_a_shared_batch_leaves_its_share_to_the_survivor() {
     let sizes = batches(&c.out);
     let tail = &sizes[sizes.len().saturating_sub(5)..];
     assert!(tail.iter().all(|&s| s == rollout), "{sizes:?}");
-    let table = MetricsTable::read(&RunDir::new(&c.out).metrics_csv()).expect("metrics.csv");
-    let lags: Vec<f64> = table
-        .column("policy_lag_max")
-        .into_iter()
-        .flatten()
-        .collect();
+    let lags = metric(&c.out, "policy_lag_max");
     assert!(
         lags[lags.len().saturating_sub(5)..]
             .iter()

@@ -25,8 +25,6 @@ use std::time::{Duration, Instant};
 
 use jsae_proto::settings::share_envs;
 
-use super::grpc::Announced;
-
 /// The most env steps one actor may say its rollout delivers (a larger claim would hold
 /// every round until its deadline).
 pub const MAX_ROLLOUT_STEPS: u64 = 1 << 22;
@@ -126,11 +124,6 @@ impl Roster {
         }
         self.clock.reset();
         Some(self.close_overdue())
-    }
-
-    /// An actor's policy stream opened, with what it announced.
-    pub(super) fn announced(&mut self, actor: u64, announced: Announced) {
-        self.open(actor, announced.rollout_steps, announced.envs);
     }
 
     /// An actor's policy stream opened; `rollout_steps` and `envs` as it announced them (from

@@ -99,10 +99,10 @@ impl LearnerLoop {
     /// or an actor joined); called before the snapshot of the update that ends a round goes
     /// out, so the next round's rollouts are stepped with them.
     fn publish_shares(&mut self, roster: &Roster) {
-        let shares = roster.shares().clone();
-        if self.publish.borrow().shares == shares {
+        if self.publish.borrow().shares == *roster.shares() {
             return;
         }
+        let shares = roster.shares().clone();
         let said: Vec<String> = shares.iter().map(|(a, n)| format!("{a}: {n}")).collect();
         tracing::info!(
             "the batch's {} environments shared among the actors present (actor: environments) \
@@ -165,7 +165,7 @@ impl LearnerLoop {
                 Input::Embedding(s) => self.embedding = Some(s),
                 Input::Stream { actor, opened } => {
                     match opened {
-                        Some(announced) => roster.announced(actor, announced),
+                        Some(a) => roster.open(actor, a.rollout_steps, a.envs),
                         None => roster.close(actor),
                     }
                     self.telemetry.observe_actors(roster.counts());
@@ -246,7 +246,6 @@ impl LearnerLoop {
                 }
                 Input::Eval(..) => {}
             }
-            self.publish_shares(&roster);
         }
         anyhow::bail!("the learner stopped before the run ended")
     }
