@@ -53,9 +53,17 @@ impl Process {
     }
 
     /// Freezes the process (SIGSTOP), so that its files stay as they are until it is killed.
+    /// The signal is delivered asynchronously (a thread in a system call, a rename for one,
+    /// finishes it first), so this returns only once every thread of the process is stopped.
     fn freeze(&self) {
         let pid = rustix::process::Pid::from_child(&self.child);
         let _ = rustix::process::kill_process(pid, rustix::process::Signal::STOP);
+        let tasks = PathBuf::from(format!("/proc/{}/task", self.child.id()));
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while !all_stopped(&tasks) {
+            assert!(Instant::now() < deadline, "the process did not stop");
+            std::thread::sleep(Duration::from_millis(5));
+        }
     }
 
     /// The log from byte `from` on.
@@ -67,6 +75,21 @@ impl Process {
     fn log_len(&self) -> usize {
         std::fs::metadata(&self.log).map_or(0, |m| m.len() as usize)
     }
+}
+
+/// Whether every thread under `/proc/PID/task` is stopped (state `T`, `t` when traced) or
+/// gone (`Z`, `X`); a process that is gone counts as stopped.
+fn all_stopped(tasks: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(tasks) else {
+        return true;
+    };
+    entries.flatten().all(|task| {
+        let stat = std::fs::read_to_string(task.path().join("stat")).unwrap_or_default();
+        // the state follows the command name, which is in parentheses and may hold spaces
+        stat.rsplit_once(") ")
+            .and_then(|(_, rest)| rest.chars().next())
+            .is_none_or(|state| matches!(state, 'T' | 't' | 'Z' | 'X'))
+    })
 }
 
 /// The version and training state of the policy checkpoint, as a restarted learner logs them.
