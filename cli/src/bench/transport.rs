@@ -13,7 +13,7 @@ use jsae_embedder::EmbedderTrainer;
 use jsae_embedder::service::EmbedderOptions;
 use jsae_learner::Learner;
 use jsae_learner::service::LearnerOptions;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_proto::settings::TrainConfig;
 use jsae_proto::wire::pb;
 use jsae_proto::{ActionBatch, RolloutFragment, TransitionBatch};
 use rand::{Rng, SeedableRng};
@@ -71,7 +71,7 @@ fn fragments(n: usize, steps: usize) -> Vec<RolloutFragment> {
 }
 
 fn base_config() -> TrainConfig {
-    let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
+    let mut c = super::gridworld_as_measured();
     c.env_steps = u64::MAX / 2;
     c.out = std::env::temp_dir().join(format!("jsae-bench-transport-{}", std::process::id()));
     c

@@ -268,6 +268,17 @@ impl TrainConfig {
             embedding.pretrain_per_action = 5;
             ppo.init_log_std = -1.2;
         }
+        // One rollout of every actor's 16 environments is a batch (it grows with the actors),
+        // except where a larger batch shared among the actors was measured to learn better.
+        let (mut envs_per_actor, mut batch_envs) = (16, None);
+        if env == EnvName::GridworldDiscrete && embedded_actions {
+            // A batch of 64 environments x 128 steps (8,192), shared among the actors present
+            // (each has 64 and steps its share): at 500k steps, 512 actions, one actor in one
+            // process, seeds 2051-2080, the deterministic evaluation solved 28 of 30 runs
+            // against 27 with 32 environments and 22 with 16 (more runs found the goal, and
+            // fewer greedy loops; README, The loop at 500k steps).
+            (envs_per_actor, batch_envs) = (64, Some(64));
+        }
         let mut env_steps = 500_000;
         if env == EnvName::Recommender {
             // 835 items: a random policy recommends each one about 120 times in the
@@ -324,8 +335,8 @@ impl TrainConfig {
             seed: 1,
             env_steps,
             actors: 1,
-            envs_per_actor: 16,
-            batch_envs: None,
+            envs_per_actor,
+            batch_envs,
             step_threads: if env.is_mujoco() { 0 } else { 1 },
             rollout_len: 128,
             rollouts_per_policy: if env.is_mujoco() { 2 } else { 1 },
