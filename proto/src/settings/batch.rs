@@ -1,6 +1,6 @@
 //! How a run's rollouts make the learner's batch. Either every actor steps all of its
 //! environments and the batch is one rollout of every actor present, so it grows with the
-//! actors (the default), or `batch_envs` environments are shared among the actors present,
+//! actors, or `batch_envs` environments are shared among the actors present,
 //! each stepping its share of its own, so the batch and the updates per env step stay one
 //! actor's as actors join and leave. The learner applies the same rule to the actors it sees
 //! ([`share_envs`]); the one-process driver to the run's own. The batch grows by default;

@@ -29,8 +29,9 @@ pub struct TrainConfig {
     pub envs_per_actor: usize,
     /// Environments one batch is gathered from, shared among the actors present: each
     /// steps its share of its own (the learner tells it), so the batch stays the same as
-    /// actors join and leave. Unset (or 0): every actor steps all of its environments and
-    /// the batch is one rollout of every actor present, growing with them. See
+    /// actors join and leave. 0: every actor steps all of its environments and the batch is
+    /// one rollout of every actor present, growing with them. Unset in a file: the env and
+    /// algo's default (64 for an embedded-action gridworld-discrete, else 0). See
     /// [`TrainConfig::shared_batch_envs`].
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub batch_envs: Option<usize>,
