@@ -152,6 +152,16 @@ fn resume_config(a: &TrainArgs, dir: &std::path::Path) -> Result<TrainConfig, St
     }
     let mut c = TrainConfig::from_layers(None, None, Some(&run.config_toml()))
         .map_err(|e| e.to_string())?;
+    // a run's config.toml names `batch_envs` only where it was set: one without it ran with
+    // the growing batch (runs from before the gridworld's shared default have none), so it
+    // goes on with it rather than taking today's default
+    let text = std::fs::read_to_string(run.config_toml()).map_err(|e| e.to_string())?;
+    if text
+        .parse::<toml::Table>()
+        .is_ok_and(|t| !t.contains_key("batch_envs"))
+    {
+        c.batch_envs = None;
+    }
     c.out = dir.to_path_buf();
     c.env_steps = a.env_steps.unwrap_or(c.env_steps);
     c.device = a.device.unwrap_or(c.device);
