@@ -116,16 +116,18 @@ async fn a_finite_but_absurd_reward_is_refused() {
     learner.stop().await.expect("learner stops");
 }
 
-fn report(actor_id: u64, request_id: u64) -> pb::EvalReport {
+/// A plausible report of `episodes` episodes.
+fn report(actor_id: u64, request_id: u64, episodes: u32) -> pb::EvalReport {
+    let episode = pb::EpisodeStat {
+        ret: 1.0,
+        length: 10,
+        success: Some(true),
+    };
     pb::EvalReport {
         actor_id,
         policy_version: 1,
         embedding_version: 0,
-        episodes: vec![pb::EpisodeStat {
-            ret: 1.0,
-            length: 10,
-            success: Some(true),
-        }],
+        episodes: vec![episode; episodes as usize],
         request_id,
         stochastic_episodes: vec![],
     }
@@ -158,12 +160,16 @@ async fn only_the_asked_actor_sees_the_evaluation_request_and_only_its_report_co
         .await
         .expect("connect");
     let wrong_id = client
-        .report_eval(report(9, request.request_id.wrapping_add(1)))
+        .report_eval(report(
+            9,
+            request.request_id.wrapping_add(1),
+            request.episodes,
+        ))
         .await
         .expect_err("an unknown request");
     assert_eq!(wrong_id.code(), Code::FailedPrecondition, "{wrong_id:?}");
     let wrong_actor = client
-        .report_eval(report(4, request.request_id))
+        .report_eval(report(4, request.request_id, request.episodes))
         .await
         .expect_err("not the asked actor");
     assert_eq!(
@@ -171,8 +177,37 @@ async fn only_the_asked_actor_sees_the_evaluation_request_and_only_its_report_co
         Code::PermissionDenied,
         "{wrong_actor:?}"
     );
+    // what the run cannot have produced: another episode count, an episode past the time
+    // limit with an absurd return, an embedding version in a run without an embedder, a
+    // policy version never published
+    let good = || report(9, request.request_id, request.episodes);
+    let mut forged = Vec::new();
+    let mut r = good();
+    r.episodes.pop();
+    forged.push((r, "episodes: expected"));
+    let mut r = good();
+    r.episodes[0].length = u32::MAX;
+    r.episodes[0].ret = 1.7e308;
+    forged.push((r, "episodes: episode 0"));
+    let mut r = good();
+    r.stochastic_episodes = vec![r.episodes[0]; request.episodes as usize + 1];
+    forged.push((r, "stochastic_episodes: expected"));
+    let mut r = good();
+    r.embedding_version = 4242;
+    forged.push((r, "embedding version 4242"));
+    let mut r = good();
+    r.policy_version = 77;
+    forged.push((r, "policy version 77"));
+    for (r, words) in forged {
+        let refused = client.report_eval(r).await.expect_err(words);
+        assert_eq!(refused.code(), Code::InvalidArgument, "{refused:?}");
+        assert!(
+            refused.message().contains(words),
+            "{refused:?} lacks {words:?}"
+        );
+    }
     client
-        .report_eval(report(9, request.request_id))
+        .report_eval(good())
         .await
         .expect("the asked actor's report");
     let summary = learner

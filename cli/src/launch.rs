@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use jsae_learner::{MetricsTable, Summary};
 use jsae_proto::run_dir::RunDir;
@@ -119,21 +119,9 @@ impl Service {
     }
 
     fn terminate(&mut self, timeout: Duration) {
-        if !matches!(self.child.try_wait(), Ok(None)) {
-            return;
+        if !jsae_experiments::child::terminate(&mut self.child, timeout) {
+            tracing::warn!("{} did not stop in {timeout:?}; killed it", self.name);
         }
-        let pid = rustix::process::Pid::from_child(&self.child);
-        let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
-        let deadline = Instant::now() + timeout;
-        while Instant::now() < deadline {
-            if !matches!(self.child.try_wait(), Ok(None)) {
-                return;
-            }
-            std::thread::sleep(Duration::from_millis(50));
-        }
-        tracing::warn!("{} did not stop in {timeout:?}; killing it", self.name);
-        let _ = self.child.kill();
-        let _ = self.child.wait();
     }
 }
 
@@ -174,12 +162,8 @@ pub(crate) fn check_security(flags: &SecurityFlags) -> Result<&'static str, Trai
 
 /// A flag that SIGTERM or SIGINT to this process sets (instead of ending it at once).
 fn stop_on_signal() -> Result<Arc<AtomicBool>, TrainError> {
-    let flag = Arc::new(AtomicBool::new(false));
-    for signal in [signal_hook::consts::SIGTERM, signal_hook::consts::SIGINT] {
-        signal_hook::flag::register(signal, flag.clone())
-            .map_err(|e| TrainError::Service(format!("cannot catch signal {signal}: {e}")))?;
-    }
-    Ok(flag)
+    jsae_experiments::child::stop_on_signal()
+        .map_err(|e| TrainError::Service(format!("cannot catch SIGTERM and SIGINT: {e}")))
 }
 
 /// The last data row of `metrics.csv`: (env steps, return, success rate).

@@ -5,15 +5,19 @@
 //! deterministic mode), `launch` (the services started as processes on loopback), `progress`
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
-//! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate), `eval`
-//! (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae recommender-eval`, held-out hit rate and NDCG), `train::RunOptions`
-//! (`--record` and `--pretrain-from`; the format is the jsae-record crate's), and the one-shot gRPC clients (`oneshot`, `health`, `recommender_client`). The
-//! binary `jsae` (src/bin/jsae.rs) parses the command line and calls these; it also starts the
-//! services themselves (`jsae embedder|learner|actor|recommender`).
+//! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate),
+//! `eval` (`jsae eval`, a run's checkpoints evaluated again), `recommender_eval` (`jsae
+//! recommender-eval`, held-out hit rate and NDCG), `train::RunOptions` (`--record` and
+//! `--pretrain-from`; the format is the jsae-record crate's), the one-shot gRPC clients
+//! (`oneshot`, `health`, `recommender_client`) and `closed_pipe` (a closed standard output
+//! ends a command quietly). The binary `jsae` (src/bin/jsae.rs) parses the command line and
+//! calls these; it also starts the services themselves (`jsae embedder|learner|actor|
+//! recommender`).
 
 #![forbid(unsafe_code)]
 
 pub mod bench;
+pub mod closed_pipe;
 pub mod commands;
 pub mod eval;
 pub mod experiments;

@@ -132,8 +132,6 @@ pub fn train_one_process_with(
         false => None,
     };
     let mut started = resume.map_or_else(Instant::now, |p| p.started());
-    let mut metrics =
-        RunMetrics::open(&run, &UPDATE_COLUMNS, resume.is_some()).map_err(io(&dir))?;
 
     let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
         .map(|id| ActorWorker::new(config, id, config.device))
@@ -213,6 +211,10 @@ pub fn train_one_process_with(
             ));
         }
     }
+    // rows of updates past the checkpoint's (a forged row, or a row of an update whose
+    // checkpoint was lost) are cut, so the rows this run writes are not taken for repeats
+    let mut metrics = RunMetrics::open(&run, &UPDATE_COLUMNS, resume.map(|_| learner.updates()))
+        .map_err(io(&dir))?;
 
     if config.init_from.is_none() && resume.is_none() {
         let logged = jsae_recommender::logged_purchases(config).map_err(TrainError::Service)?;

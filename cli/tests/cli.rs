@@ -164,6 +164,18 @@ fn a_short_run_prints_its_summary() {
         (mode["eval_episodes"].as_u64(), mode["decode"].as_str()),
         (Some(3), Some("mode"))
     );
+    // its output closed under it (`jsae eval --run X | head -4`): a clean exit, no panic
+    let mut closed = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["eval", "--run", d])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("starts");
+    drop(closed.stdout.take());
+    let done = closed.wait_with_output().expect("ends");
+    let stderr = String::from_utf8_lossy(&done.stderr);
+    assert!(done.status.success(), "{:?}: {stderr}", done.status);
+    assert!(!stderr.contains("panicked"), "{stderr}");
     let missing = jsae(&["eval", "--run", "/nonexistent/run"]);
     assert_eq!(missing.status.code(), Some(2));
 }
@@ -300,32 +312,20 @@ fn an_actor_refuses_a_bad_address_and_warns_when_refused() {
     );
 }
 
-/// The processes whose parent is `pid` (from /proc).
+/// The processes whose parent is `pid`.
 fn children_of(pid: u32) -> Vec<u32> {
-    let Ok(entries) = std::fs::read_dir("/proc") else {
-        return Vec::new();
-    };
-    entries
-        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
-        .filter(|p| {
-            let stat = std::fs::read_to_string(format!("/proc/{p}/stat")).unwrap_or_default();
-            // "pid (comm) state ppid ...": the fields after the last ')'
-            let after = stat.rsplit(')').next().unwrap_or("");
-            after.split_whitespace().nth(1) == Some(&pid.to_string())
-        })
+    common::processes()
+        .into_iter()
+        .filter(|p| p.ppid == pid)
+        .map(|p| p.pid)
         .collect()
 }
 
 /// Whether `pid` still runs (not gone, not a zombie waiting to be reaped).
 fn running(pid: u32) -> bool {
-    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap_or_default();
-    let state = stat
-        .rsplit(')')
-        .next()
-        .unwrap_or("")
-        .split_whitespace()
-        .next();
-    matches!(state, Some(s) if s != "Z" && s != "X")
+    common::processes()
+        .iter()
+        .any(|p| p.pid == pid && p.running)
 }
 
 #[test]

@@ -312,3 +312,63 @@ fn pre_training_shows_its_phase_and_time_left_in_json_logs() {
     assert!(messages[pretraining].ends_with(" s left"), "{messages:?}");
     let _ = std::fs::remove_dir_all(&root);
 }
+
+#[test]
+fn services_refuse_damaged_checkpoints_rather_than_start_again_over_them() {
+    let dir = fresh_dir("damaged-checkpoints");
+    let run = dir.join("run");
+    let checkpoints = run.join("checkpoints");
+    std::fs::create_dir_all(&checkpoints).expect("mkdir");
+    let files = [
+        "policy-latest.ckpt",
+        "policy-previous.ckpt",
+        "embedding-latest.ckpt",
+        "embedding-previous.ckpt",
+    ];
+    for f in files {
+        std::fs::write(checkpoints.join(f), b"torn by a crash").expect("write");
+    }
+    let metrics = run.join("metrics.csv");
+    std::fs::write(&metrics, "update,env_steps\n1,2048\n").expect("write");
+    let p = |path: &Path| path.to_str().unwrap_or(".").to_string();
+    let common = [
+        "--env",
+        "gridworld-discrete",
+        "--algo",
+        "jsae",
+        "--seed",
+        "1",
+        "--listen",
+        "127.0.0.1:0",
+    ];
+    let learner = jsae_in(
+        &dir,
+        &[&["learner", "--out", &p(&run)], &common[..]].concat(),
+    );
+    let embedder = jsae_in(
+        &dir,
+        &[
+            &["embedder", "--checkpoint-dir", &p(&checkpoints)],
+            &common[..],
+        ]
+        .concat(),
+    );
+    for (out, kind) in [(learner, "policy"), (embedder, "embedding")] {
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{kind}: {err}");
+        for file in [
+            format!("{kind}-latest.ckpt"),
+            format!("{kind}-previous.ckpt"),
+        ] {
+            assert!(err.contains(&file), "{kind}: {err}");
+        }
+    }
+    // nothing was overwritten
+    for f in files {
+        let bytes = std::fs::read(checkpoints.join(f)).expect("kept");
+        assert_eq!(bytes, b"torn by a crash", "{f}");
+    }
+    let kept = std::fs::read_to_string(&metrics).expect("kept");
+    assert_eq!(kept, "update,env_steps\n1,2048\n");
+    let _ = std::fs::remove_dir_all(&dir);
+}

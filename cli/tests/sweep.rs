@@ -1,5 +1,8 @@
 //! `jsae sweep` and `jsae report` end to end: a small grid trained as `jsae train` processes
-//! two at a time, started again (finished runs skipped, a lost one redone), then reported.
+//! two at a time, started again (finished runs skipped, a lost one redone), then reported;
+//! SIGTERM to a sweep stops its runs and their services.
+
+mod common;
 
 use std::path::Path;
 use std::process::Command;
@@ -130,4 +133,73 @@ fn a_bad_sweep_file_exits_2_with_a_reason() {
     assert!(!out_dir.join("runs").exists());
     let _ = std::fs::remove_dir_all(&out_dir);
     let _ = std::fs::remove_file(&file);
+}
+
+/// The running processes whose command line mentions `needle`.
+fn processes_mentioning(needle: &str) -> Vec<u32> {
+    common::processes()
+        .into_iter()
+        .filter(|p| p.running && p.cmdline.contains(needle))
+        .map(|p| p.pid)
+        .collect()
+}
+
+#[test]
+fn sigterm_to_a_sweep_stops_its_runs_and_their_services() {
+    // one process per run (the sweep's default), then the services as processes: the sweep
+    // and the first two runs' `jsae train` (PPO, seeds 3 and 4), each with a learner and an
+    // actor under it
+    sigterm_stops(true, 3);
+    sigterm_stops(false, 3 + 4);
+}
+
+fn sigterm_stops(one_process: bool, processes: usize) {
+    let dir = std::env::temp_dir().join(format!(
+        "jsae-sweep-term-{one_process}-{}",
+        std::process::id()
+    ));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("mkdir");
+    let file = dir.join("grid.toml");
+    // runs far too long to end by themselves in this test
+    let long = SWEEP.replace(
+        "env_steps = 3000",
+        &format!("env_steps = 100000000\none_process = {one_process}"),
+    );
+    std::fs::write(&file, long).expect("sweep file");
+    let results = dir.join("results");
+    let r = results.to_str().unwrap_or(".");
+    let mut sweep = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args([
+            "sweep",
+            file.to_str().unwrap_or("."),
+            "--out",
+            r,
+            "--jobs",
+            "2",
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("jsae sweep starts");
+    // until both runs are under way
+    let started = std::time::Instant::now();
+    while processes_mentioning(r).len() < processes {
+        if started.elapsed().as_secs() > 120 {
+            let pid = rustix::process::Pid::from_child(&sweep);
+            let _ = rustix::process::kill_process(pid, rustix::process::Signal::TERM);
+            let _ = sweep.wait();
+            panic!("the runs did not start: {:?}", processes_mentioning(r));
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    std::thread::sleep(std::time::Duration::from_secs(2));
+    let pid = rustix::process::Pid::from_child(&sweep);
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).expect("SIGTERM");
+    let out = sweep.wait_with_output().expect("jsae sweep ends");
+    assert!(!out.status.success(), "{}", text(&out));
+    assert!(text(&out).contains("stopped by a signal"), "{}", text(&out));
+    let left = processes_mentioning(r);
+    assert!(left.is_empty(), "still running: {left:?}");
+    let _ = std::fs::remove_dir_all(&dir);
 }

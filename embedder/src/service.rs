@@ -47,6 +47,8 @@ type Published = watch::Receiver<Option<Arc<EmbeddingSnapshot>>>;
 pub struct EmbedderService {
     states: StateSpace,
     actions: ActionSpace,
+    /// `ppo.max_abs_reward`: the largest reward magnitude accepted, as the learner's.
+    max_abs_reward: f32,
     queue: mpsc::Sender<TransitionBatch>,
     published: Published,
     stopping: watch::Receiver<bool>,
@@ -73,7 +75,10 @@ impl pb::embedder_server::Embedder for EmbedderService {
                     )))
                 } else {
                     TransitionBatch::try_from(msg)
-                        .and_then(|b| b.validate(&self.states, &self.actions).map(|()| b))
+                        .and_then(|b| {
+                            b.validate(&self.states, &self.actions, self.max_abs_reward)
+                                .map(|()| b)
+                        })
                         .map_err(|e| {
                             RpcError::InvalidArgument(format!("transition batch {i}: {e}"))
                         })
@@ -267,6 +272,7 @@ pub async fn serve(
     let service = EmbedderService {
         states: states.clone(),
         actions: actions.clone(),
+        max_abs_reward: config.ppo.max_abs_reward,
         queue: queue_tx,
         published: publish_rx,
         stopping: stop_rx,
@@ -356,7 +362,13 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
             }
             _ => Ok(c),
         })
-        .and_then(|c| Ok((c, args.security.load()?)));
+        .and_then(|c| {
+            // damaged checkpoints are refused rather than overwritten from version 0
+            if let Some(dir) = &args.checkpoint_dir {
+                Checkpoints::new(dir).refuse_unreadable(Weights::Embedding)?;
+            }
+            Ok((c, args.security.load()?))
+        });
     let mut registry = MetricsRegistry::default();
     let metrics = EmbedderMetrics::register(&mut registry);
     net::service_main(

@@ -173,9 +173,14 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         self.stats.version > 0
     }
 
-    /// Validates and stores a batch of transitions.
+    /// Validates (shapes, ranges, finite values; the reward bound is the service's, at the
+    /// wire) and stores a batch of transitions.
     pub fn ingest(&mut self, batch: &TransitionBatch) -> Result<(), ValidationError> {
-        batch.validate(self.model.state_space(), self.model.action_space())?;
+        batch.validate(
+            self.model.state_space(),
+            self.model.action_space(),
+            f32::MAX,
+        )?;
         self.model.observe_states(&batch.states);
         self.replay.push(batch);
         self.since_update += batch.len();

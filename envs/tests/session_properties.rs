@@ -1,10 +1,10 @@
 //! Property tests of the Recommender's session decoder and validator: any bytes decode to an
 //! answer (never a panic), and a session passes `check_session` exactly when its id and every
-//! item id are 1 to 256 bytes long, it has 1 to 10,000 purchases, and every price is a finite
-//! number >= 0 (the contract's definition of a malformed session).
+//! item id are 1 to 256 bytes long, it has 1 to 10,000 purchases, and every price is a number
+//! in [0, MAX_PRICE] (the contract's definition of a malformed session, and its bound).
 
 use jsae_envs::recsys::Session;
-use jsae_envs::recsys::sessions::{MAX_ID_BYTES, check_session};
+use jsae_envs::recsys::sessions::{MAX_ID_BYTES, MAX_PRICE, check_session};
 use jsae_proto::wire::pb;
 use proptest::prelude::*;
 use prost::Message;
@@ -12,6 +12,9 @@ use prost::Message;
 fn price() -> impl Strategy<Value = f64> {
     prop_oneof![
         0.0..1e6,
+        Just(MAX_PRICE),
+        Just(MAX_PRICE * (1.0 + 1e-12)),
+        Just(1.7e308),
         Just(-0.01),
         Just(f64::NAN),
         Just(f64::INFINITY),
@@ -53,7 +56,7 @@ proptest! {
         let good_id = |s: &str| !s.is_empty() && s.len() <= MAX_ID_BYTES;
         let well_formed = good_id(&session_id)
             && !purchases.is_empty()
-            && purchases.iter().all(|(item, p)| good_id(item) && p.is_finite() && *p >= 0.0);
+            && purchases.iter().all(|(item, p)| good_id(item) && p.is_finite() && (0.0..=MAX_PRICE).contains(p));
         prop_assert_eq!(check_session(&Session::from(wire)).is_ok(), well_formed);
     }
 }

@@ -1,6 +1,8 @@
 //! Experiments over many runs: `jsae sweep` runs a grid of envs x algos x seeds x setting
-//! overrides, `jsae report` summarises a results folder over seeds.
+//! overrides, `jsae report` summarises a results folder over seeds; `child` holds the rule
+//! for stopping child processes on SIGTERM/SIGINT that `jsae sweep` and `jsae train` share.
 
+pub mod child;
 pub mod figures;
 pub mod grid;
 pub mod report;

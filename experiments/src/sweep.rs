@@ -10,7 +10,8 @@ use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::sync::Mutex;
-use std::time::Instant;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::time::{Duration, Instant};
 
 use jsae_proto::run_dir::RunDir;
 use jsae_proto::settings::TrainConfig;
@@ -44,6 +45,20 @@ pub enum SweepError {
         /// Why.
         reason: String,
     },
+    /// SIGTERM or SIGINT arrived: the running runs were stopped and no other started.
+    #[error(
+        "stopped by a signal: {trained} runs finished before it; the {stopped} it stopped \
+         start again from nothing at the next `jsae sweep` into this folder"
+    )]
+    Interrupted {
+        /// Runs that finished in this sweep.
+        trained: usize,
+        /// Runs it stopped.
+        stopped: usize,
+    },
+    /// The signal handlers could not be installed.
+    #[error("cannot catch SIGTERM and SIGINT: {0}")]
+    Signals(std::io::Error),
 }
 
 fn io(path: &Path) -> impl FnOnce(std::io::Error) -> SweepError + '_ {
@@ -204,6 +219,8 @@ pub fn run_sweep(
         queue.push_back((run, paths));
     }
     let total = queue.len();
+    let stop = crate::child::stop_on_signal().map_err(SweepError::Signals)?;
+    let stopped = AtomicUsize::new(0);
     note(&format!(
         "{total} runs to train, {} finished before; {} at a time",
         outcome.skipped, options.jobs
@@ -215,10 +232,17 @@ pub fn run_sweep(
         for _ in 0..options.jobs.max(1) {
             scope.spawn(|| {
                 loop {
+                    if stop.load(Ordering::Relaxed) {
+                        break;
+                    }
                     let next = queue.lock().map(|mut q| q.pop_front()).ok().flatten();
                     let Some((run, paths)) = next else { break };
                     let started = Instant::now();
-                    let ok = train_one(&options.exe, &paths, threads);
+                    let Some(ok) = train_one(&options.exe, &paths, threads, &stop) else {
+                        stopped.fetch_add(1, Ordering::Relaxed);
+                        note(&format!("stopped {}", run.relative_dir().display()));
+                        continue;
+                    };
                     let mut done = results.lock().unwrap_or_else(|e| e.into_inner());
                     done.push((run.clone(), paths.clone(), ok));
                     note(&format!(
@@ -239,16 +263,28 @@ pub fn run_sweep(
             outcome.failed.push((run, paths.log));
         }
     }
+    if stop.load(Ordering::Relaxed) {
+        return Err(SweepError::Interrupted {
+            trained: outcome.trained,
+            stopped: stopped.into_inner(),
+        });
+    }
     Ok(outcome)
 }
 
-/// Trains one run as a `jsae train` process; true when it finished with a summary.
-fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
+/// How long a stopped run's `jsae train` has to stop its services (SIGTERM) before it is
+/// killed: its own services have 10-30 s each.
+const RUN_STOP_TIMEOUT: Duration = Duration::from_secs(60);
+
+/// Trains one run as a `jsae train` process: whether it finished with a summary, or None
+/// when `stop` was set meanwhile (the process was then stopped with SIGTERM, passed on to
+/// its services, and SIGKILL after [`RUN_STOP_TIMEOUT`]).
+fn train_one(exe: &Path, paths: &RunPaths, threads: usize, stop: &AtomicBool) -> Option<bool> {
     let Ok(log) = std::fs::File::create(&paths.log) else {
-        return false;
+        return Some(false);
     };
     let Ok(log2) = log.try_clone() else {
-        return false;
+        return Some(false);
     };
     let mut command = Command::new(exe);
     // The run's settings are its --config file alone: the `jsae train` flags' environment
@@ -268,7 +304,7 @@ fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
     ] {
         command.env_remove(var);
     }
-    let status = command
+    let child = command
         .arg("train")
         .arg("--config")
         .arg(&paths.config)
@@ -279,8 +315,25 @@ fn train_one(exe: &Path, paths: &RunPaths, threads: usize) -> bool {
         .stdin(Stdio::null())
         .stdout(log)
         .stderr(log2)
-        .status();
-    matches!(status, Ok(s) if s.success()) && paths.finished()
+        .spawn();
+    let Ok(mut child) = child else {
+        return Some(false);
+    };
+    loop {
+        if stop.load(Ordering::Relaxed) {
+            crate::child::terminate(&mut child, RUN_STOP_TIMEOUT);
+            return None;
+        }
+        match child.try_wait() {
+            Ok(Some(status)) => return Some(status.success() && paths.finished()),
+            Ok(None) => std::thread::sleep(Duration::from_millis(100)),
+            Err(_) => {
+                let _ = child.kill();
+                let _ = child.wait();
+                return Some(false);
+            }
+        }
+    }
 }
 
 #[cfg(test)]

@@ -116,8 +116,11 @@ impl CsvMetrics {
         })
     }
 
-    /// Opens the file to add rows (a resumed learner), or creates it.
-    pub fn append(path: &Path, columns: &[&'static str]) -> io::Result<Self> {
+    /// Opens the file to add rows (a learner resumed from a checkpoint after `updates`
+    /// updates), or creates it. Rows of a later update (a forged row, or a row of an update
+    /// whose checkpoint was lost) are cut first, with a warning naming the file: rows are
+    /// idempotent by `update`, so they would silence every row to come.
+    pub fn append(path: &Path, columns: &[&'static str], updates: u64) -> io::Result<Self> {
         let has_header = std::fs::metadata(path).is_ok_and(|m| m.len() > 0);
         if !has_header {
             return Self::create(path, columns);
@@ -132,6 +135,7 @@ impl CsvMetrics {
                 path.display()
             )));
         }
+        let text = cut_rows_past(path, &text, updates)?;
         let file = std::fs::OpenOptions::new().append(true).open(path)?;
         if !text.ends_with('\n') {
             // a row torn by a crash mid-write: dropped, so the next one starts on its own line
@@ -201,6 +205,40 @@ impl MetricsSink for CsvMetrics {
 pub struct MetricsReadError {
     path: PathBuf,
     source: csv::Error,
+}
+
+/// `text` (the file at `path`) without its complete rows whose `update` is not a number up
+/// to `updates`; the file is rewritten (beside, then renamed) when any is cut. A file
+/// without an `update` column is left as it is.
+fn cut_rows_past(path: &Path, text: &str, updates: u64) -> io::Result<String> {
+    let mut lines = complete_rows(text).lines();
+    let header = lines.next().unwrap_or("");
+    let Some(at) = header.split(',').position(|c| c == "update") else {
+        return Ok(text.to_owned());
+    };
+    let kept = |row: &str| {
+        let update = row.split(',').nth(at).and_then(|v| v.parse::<f64>().ok());
+        update.is_some_and(|u| u <= updates as f64)
+    };
+    let rows: Vec<&str> = lines.collect();
+    let cut = rows.iter().filter(|r| !kept(r)).count();
+    if cut == 0 {
+        return Ok(text.to_owned());
+    }
+    tracing::warn!(
+        "{}: {cut} rows of updates past the checkpoint's {updates} (or without an update \
+         number) cut",
+        path.display()
+    );
+    let mut kept_text = format!("{header}\n");
+    for row in rows.iter().filter(|r| kept(r)) {
+        kept_text.push_str(row);
+        kept_text.push('\n');
+    }
+    let tmp = path.with_extension("csv.cut");
+    std::fs::write(&tmp, &kept_text)?;
+    std::fs::rename(&tmp, path)?;
+    Ok(kept_text)
 }
 
 /// The text up to its last line end: the complete rows of a file a crash may have cut.
@@ -337,7 +375,7 @@ mod tests {
             .expect("row");
         assert!(sink.record(&[("return_mean", None)]).is_err());
         drop(sink);
-        let mut sink = CsvMetrics::append(&path, &columns).expect("append");
+        let mut sink = CsvMetrics::append(&path, &columns, 1).expect("append");
         sink.record(&[("env_steps", Some(4096.0)), ("return_mean", Some(-0.25))])
             .expect("row");
         let table = MetricsTable::read(&path).expect("read");
@@ -361,7 +399,7 @@ mod tests {
         let point = ResumePoint::of(&run).expect("reads");
         assert_eq!((point.env_steps, point.wall_seconds), (4096, 3.0));
         let columns = ["env_steps", "wall_seconds"];
-        let mut sink = CsvMetrics::append(&run.metrics_csv(), &columns).expect("append");
+        let mut sink = CsvMetrics::append(&run.metrics_csv(), &columns, 2).expect("append");
         sink.record(&[("env_steps", Some(6144.0)), ("wall_seconds", Some(4.5))])
             .expect("row");
         let table = MetricsTable::read(&run.metrics_csv()).expect("read");
@@ -374,7 +412,7 @@ mod tests {
         let columns = ["update", "env_steps"];
         let path = dir.join("updates.csv");
         std::fs::write(&path, "update,env_steps\n1,2048\n2,4096\n").expect("write");
-        let mut sink = CsvMetrics::append(&path, &columns).expect("append");
+        let mut sink = CsvMetrics::append(&path, &columns, 2).expect("append");
         for (u, steps) in [(2.0, 4100.0), (3.0, 6144.0), (3.0, 6150.0)] {
             sink.record(&[("update", Some(u)), ("env_steps", Some(steps))])
                 .expect("row");
@@ -386,6 +424,13 @@ mod tests {
             ResumePoint::of(&jsae_proto::run_dir::RunDir::new(dir.join("none"))).expect("none"),
             ResumePoint::default()
         );
+        // a forged row far past the checkpoint's update is cut, so later rows are written
+        std::fs::write(&path, "update,env_steps\n1,2048\n999999,1\n2,4096\nx,5\n").expect("write");
+        let mut sink = CsvMetrics::append(&path, &columns, 2).expect("append");
+        sink.record(&[("update", Some(3.0)), ("env_steps", Some(6144.0))])
+            .expect("row");
+        let table = MetricsTable::read(&path).expect("read");
+        assert_eq!(table.column("update"), [Some(1.0), Some(2.0), Some(3.0)]);
         let _ = std::fs::remove_dir_all(&dir);
     }
 }

@@ -80,12 +80,11 @@ impl RunMetrics {
     pub fn open(
         run: &jsae_proto::run_dir::RunDir,
         columns: &[&'static str],
-        append: bool,
+        resumed_at: Option<u64>,
     ) -> io::Result<Self> {
-        let csv = if append {
-            CsvMetrics::append(&run.metrics_csv(), columns)?
-        } else {
-            CsvMetrics::create(&run.metrics_csv(), columns)?
+        let csv = match resumed_at {
+            Some(updates) => CsvMetrics::append(&run.metrics_csv(), columns, updates)?,
+            None => CsvMetrics::create(&run.metrics_csv(), columns)?,
         };
         Ok(Self {
             csv,

@@ -41,4 +41,4 @@ pub use messages::{
 pub use random_id::random_id;
 pub use spaces::{ActionSpace, StateSpace};
 pub use status::RpcError;
-pub use validate::ValidationError;
+pub use validate::{FragmentBounds, MAX_ABS_POLICY_INPUT, ValidationError, check_episodes};

@@ -251,6 +251,27 @@ impl Checkpoints {
         None
     }
 
+    /// An error naming the latest checkpoint files of `kind` when some are there and none can
+    /// be read (each refusal is logged by [`Self::read_latest_checkpoint`]): a service that
+    /// started afresh would overwrite them (and a learner its run's metrics), so it refuses
+    /// to start instead.
+    pub fn refuse_unreadable(&self, kind: Weights) -> Result<(), String> {
+        let present: Vec<String> = [self.latest(kind), self.previous(kind)]
+            .into_iter()
+            .filter(|p| p.exists())
+            .map(|p| p.display().to_string())
+            .collect();
+        if present.is_empty() || self.read_latest_checkpoint(kind).is_some() {
+            return Ok(());
+        }
+        Err(format!(
+            "{} cannot be read (damaged or torn): starting afresh \
+             would overwrite them. Restore them from a backup, or move them away to start \
+             again from version 0",
+            present.join(" and ")
+        ))
+    }
+
     /// Removes the latest files (a fresh run in a directory that held an older one), and the
     /// `KIND-latest.bpk`/`.version` pairs older builds wrote.
     pub fn clear_latest(&self) {
@@ -381,9 +402,27 @@ mod tests {
         let bytes = std::fs::read(c.latest(Weights::Policy)).expect("read");
         std::fs::write(c.latest(Weights::Policy), &bytes[..bytes.len() - 3]).expect("write");
         assert_eq!(c.read_latest(Weights::Policy), Some((3, b"three".to_vec())));
+        // both damaged: none to read, and a fresh start refused, naming both files
+        assert_eq!(c.refuse_unreadable(Weights::Policy), Ok(()));
+        std::fs::write(c.previous(Weights::Policy), b"garbage").expect("write");
+        assert_eq!(c.read_latest(Weights::Policy), None);
+        let refused = c
+            .refuse_unreadable(Weights::Policy)
+            .expect_err("both damaged");
+        assert!(
+            refused.contains("policy-latest.ckpt") && refused.contains("policy-previous.ckpt"),
+            "{refused}"
+        );
+        assert_eq!(
+            c.refuse_unreadable(Weights::Embedding),
+            Ok(()),
+            "none there"
+        );
         // both gone: none
+        std::fs::remove_file(c.latest(Weights::Policy)).expect("rm");
         std::fs::remove_file(c.previous(Weights::Policy)).expect("rm");
         assert_eq!(c.read_latest(Weights::Policy), None);
+        assert_eq!(c.refuse_unreadable(Weights::Policy), Ok(()));
         // the state travels with the weights, in the same file
         let saved = LatestCheckpoint {
             version: 5,

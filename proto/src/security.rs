@@ -130,6 +130,8 @@ fn pem(bytes: Vec<u8>, flag: &str, path: &Path, label: &str) -> Result<Vec<u8>, 
 #[derive(Clone)]
 pub struct Token {
     header: MetadataValue<Ascii>,
+    /// SHA-256 of the header's bytes, what a given header's digest is compared with.
+    digest: [u8; 32],
 }
 
 impl std::fmt::Debug for Token {
@@ -155,17 +157,24 @@ impl Token {
         if !text.bytes().all(|b| b.is_ascii_graphic()) {
             return Err("the token must be visible ASCII without spaces".into());
         }
-        let header = format!("Bearer {text}")
+        let header: MetadataValue<Ascii> = format!("Bearer {text}")
             .parse()
             .map_err(|_| "the token cannot travel as gRPC metadata".to_string())?;
-        Ok(Self { header })
+        let digest = sha256(header.as_bytes());
+        Ok(Self { header, digest })
     }
 
     /// Whether `given` (an `authorization` value) is this token, in time independent of
-    /// where they differ.
+    /// where they differ and of the token's length: the digests compared have one length
+    /// (a slice comparison returns at once on a length mismatch).
     fn matches(&self, given: &[u8]) -> bool {
-        self.header.as_bytes().ct_eq(given).into()
+        self.digest.ct_eq(&sha256(given)).into()
     }
+}
+
+fn sha256(bytes: &[u8]) -> [u8; 32] {
+    use sha2::Digest;
+    sha2::Sha256::digest(bytes).into()
 }
 
 /// What a process knows about the deployment's security; the default is none (plain text,

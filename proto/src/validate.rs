@@ -1,6 +1,9 @@
 //! Input checks every receiver runs before accepting a message.
 
-use crate::{ActionBatch, ActionSpace, RolloutFragment, StateBatch, StateSpace, TransitionBatch};
+use crate::{
+    ActionBatch, ActionSpace, EpisodeStat, EvalReport, RolloutFragment, StateBatch, StateSpace,
+    TransitionBatch,
+};
 
 /// Why a message was refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
@@ -61,6 +64,39 @@ pub enum ValidationError {
         /// The field.
         field: &'static str,
     },
+    /// A message that must carry at least one value carries none.
+    #[error("{field}: empty (at least one step)")]
+    Empty {
+        /// The field.
+        field: &'static str,
+    },
+    /// A finite value outside the range the receiver accepts.
+    #[error("{field}: value {index} is {value}, outside [{lo}, {hi}]")]
+    Range {
+        /// The field.
+        field: &'static str,
+        /// Index of the first such value.
+        index: usize,
+        /// The value.
+        value: f32,
+        /// The lowest accepted.
+        lo: f32,
+        /// The highest accepted.
+        hi: f32,
+    },
+    /// An episode's statistics no real run can produce.
+    #[error(
+        "episodes: episode {index} has length {length} and return {ret}: at least one step, \
+         and a return its steps' bounded rewards can make"
+    )]
+    Episode {
+        /// Index of the episode in the message.
+        index: usize,
+        /// Its return.
+        ret: f64,
+        /// Its length.
+        length: u32,
+    },
     /// A finite value beyond the bound the receiver accepts.
     #[error("{field}: value {index} is {value}, beyond +-{limit}")]
     Bound {
@@ -120,7 +156,8 @@ fn check_states(
         (StateBatch::Real { dim, data }, StateSpace::Real { dim: want }) => {
             check_len(field, *want, *dim)?;
             check_len(field, rows * want, data.len())?;
-            check_finite(field, data)
+            check_finite(field, data)?;
+            check_bound(field, data, MAX_ABS_POLICY_INPUT)
         }
         _ => Err(ValidationError::Kind { field }),
     }
@@ -154,18 +191,22 @@ fn check_actions(
 }
 
 impl TransitionBatch {
-    /// Checks dimensions, ranges and finiteness against the environment's spaces.
+    /// Checks dimensions, ranges and finiteness against the environment's spaces, real
+    /// states within [`MAX_ABS_POLICY_INPUT`] and rewards within `max_abs_reward`
+    /// (`ppo.max_abs_reward`, as the learner's).
     pub fn validate(
         &self,
         states: &StateSpace,
         actions: &ActionSpace,
+        max_abs_reward: f32,
     ) -> Result<(), ValidationError> {
         let n = self.rewards.len();
         check_states("states", &self.states, states, n)?;
         check_states("next_states", &self.next_states, states, n)?;
         check_actions("actions", &self.actions, actions, n)?;
         check_len("terminated", n, self.terminated.len())?;
-        check_finite("rewards", &self.rewards)
+        check_finite("rewards", &self.rewards)?;
+        check_bound("rewards", &self.rewards, max_abs_reward)
     }
 }
 
@@ -181,25 +222,66 @@ fn check_bound(field: &'static str, values: &[f32], limit: f32) -> Result<(), Va
     }
 }
 
+/// Largest magnitude of a policy input a fragment may carry (`x`, `truncated_next_x`,
+/// `last_next_x`). Far beyond any environment's observation or embedding, yet its square
+/// (in the observation statistics) stays finite in `f32`.
+pub const MAX_ABS_POLICY_INPUT: f32 = 1e6;
+
+/// What a receiver accepts of a rollout fragment: the policy's input width and action
+/// space, and the range of every value a real actor can send.
+#[derive(Debug, Clone, PartialEq)]
+pub struct FragmentBounds {
+    /// Width of one policy input.
+    pub x_dim: usize,
+    /// The space the policy samples in.
+    pub actions: ActionSpace,
+    /// `ppo.max_abs_reward`: the largest reward magnitude.
+    pub max_abs_reward: f32,
+    /// The behaviour log-probabilities the policy can give, `(lowest, highest)` (the
+    /// learner's `policy::behaviour_logp_range`).
+    pub logp: (f32, f32),
+    /// The most steps an episode lasts (the environment's time limit; `u32::MAX` where
+    /// unknown).
+    pub max_episode_steps: u32,
+}
+
+fn check_range(
+    field: &'static str,
+    values: &[f32],
+    (lo, hi): (f32, f32),
+) -> Result<(), ValidationError> {
+    match values.iter().position(|v| !(lo..=hi).contains(v)) {
+        None => Ok(()),
+        Some(index) => Err(ValidationError::Range {
+            field,
+            index,
+            value: values[index],
+            lo,
+            hi,
+        }),
+    }
+}
+
 impl RolloutFragment {
-    /// Checks dimensions and finiteness against the policy's input width and action space
-    /// (`policy_actions`: the space the policy samples in), and that no reward is larger in
-    /// magnitude than `max_abs_reward` (`ppo.max_abs_reward`).
-    pub fn validate(
-        &self,
-        x_dim: usize,
-        policy_actions: &ActionSpace,
-        max_abs_reward: f32,
-    ) -> Result<(), ValidationError> {
-        let n = self.rewards.len();
+    /// Checks dimensions, finiteness and ranges against `bounds`: at least one step; inputs
+    /// within [`MAX_ABS_POLICY_INPUT`]; log-probabilities within what the policy can give;
+    /// rewards within `max_abs_reward`; no more episodes than steps that end one, each at
+    /// least one step long with a return its length of bounded rewards can make.
+    pub fn validate(&self, bounds: &FragmentBounds) -> Result<(), ValidationError> {
+        let (x_dim, n) = (bounds.x_dim, self.rewards.len());
+        if n == 0 {
+            return Err(ValidationError::Empty { field: "rewards" });
+        }
         check_len("x_dim", x_dim, self.x_dim)?;
         check_len("x", n * x_dim, self.x.len())?;
         check_finite("x", &self.x)?;
-        check_actions("actions", &self.actions, policy_actions, n)?;
+        check_bound("x", &self.x, MAX_ABS_POLICY_INPUT)?;
+        check_actions("actions", &self.actions, &bounds.actions, n)?;
         check_len("logp", n, self.logp.len())?;
         check_finite("logp", &self.logp)?;
+        check_range("logp", &self.logp, bounds.logp)?;
         check_finite("rewards", &self.rewards)?;
-        check_bound("rewards", &self.rewards, max_abs_reward)?;
+        check_bound("rewards", &self.rewards, bounds.max_abs_reward)?;
         check_len("terminated", n, self.terminated.len())?;
         check_len("truncated", n, self.truncated.len())?;
         let cuts = self.truncated.iter().filter(|&&t| t).count();
@@ -209,12 +291,69 @@ impl RolloutFragment {
             self.truncated_next_x.len(),
         )?;
         check_finite("truncated_next_x", &self.truncated_next_x)?;
+        check_bound(
+            "truncated_next_x",
+            &self.truncated_next_x,
+            MAX_ABS_POLICY_INPUT,
+        )?;
         check_len("last_next_x", x_dim, self.last_next_x.len())?;
         check_finite("last_next_x", &self.last_next_x)?;
+        check_bound("last_next_x", &self.last_next_x, MAX_ABS_POLICY_INPUT)?;
         if !self.visit_keys.is_empty() {
             check_len("visit_keys", n, self.visit_keys.len())?;
         }
-        Ok(())
+        self.check_episodes(bounds)
+    }
+
+    /// At most one episode per step that ends one, each as [`check_episodes`] wants it.
+    fn check_episodes(&self, bounds: &FragmentBounds) -> Result<(), ValidationError> {
+        let ends = (self.terminated.iter().zip(&self.truncated))
+            .filter(|&(&t, &c)| t || c)
+            .count();
+        if self.episodes.len() > ends {
+            return Err(ValidationError::Length {
+                field: "episodes (at most one per step that ends one)",
+                expected: ends,
+                got: self.episodes.len(),
+            });
+        }
+        check_episodes(&self.episodes, bounds)
+    }
+}
+
+/// Each episode at least a step long and at most `max_episode_steps`, its return within
+/// what its length of rewards within `max_abs_reward` can make (1% slack: actors sum the
+/// rewards before they are rounded to `f32`).
+pub fn check_episodes(
+    episodes: &[EpisodeStat],
+    bounds: &FragmentBounds,
+) -> Result<(), ValidationError> {
+    for (index, e) in episodes.iter().enumerate() {
+        let most = f64::from(bounds.max_abs_reward) * f64::from(e.length) * 1.01;
+        let length_ok = (1..=bounds.max_episode_steps).contains(&e.length);
+        if !length_ok || !e.ret.is_finite() || e.ret.abs() > most {
+            return Err(ValidationError::Episode {
+                index,
+                ret: e.ret,
+                length: e.length,
+            });
+        }
+    }
+    Ok(())
+}
+
+impl EvalReport {
+    /// Checks a report against the request it answers (`asked` episodes) and `bounds`: as
+    /// many deterministic episodes as asked, as many sampled ones or none, each episode
+    /// within [`check_episodes`].
+    pub fn check(&self, asked: u32, bounds: &FragmentBounds) -> Result<(), ValidationError> {
+        let asked = asked as usize;
+        check_len("episodes", asked, self.episodes.len())?;
+        if !self.stochastic.is_empty() {
+            check_len("stochastic_episodes", asked, self.stochastic.len())?;
+        }
+        check_episodes(&self.episodes, bounds)?;
+        check_episodes(&self.stochastic, bounds)
     }
 }
 
@@ -255,9 +394,19 @@ mod tests {
         }
     }
 
+    fn bounds(x_dim: usize) -> FragmentBounds {
+        FragmentBounds {
+            x_dim,
+            actions: space(),
+            max_abs_reward: 1e6,
+            logp: (-100.0, 5.0),
+            max_episode_steps: 1000,
+        }
+    }
+
     #[test]
     fn a_consistent_fragment_passes() {
-        assert_eq!(fragment().validate(2, &space(), 1e6), Ok(()));
+        assert_eq!(fragment().validate(&bounds(2)), Ok(()));
     }
 
     #[test]
@@ -265,30 +414,30 @@ mod tests {
         let mut f = fragment();
         f.x.pop();
         assert!(matches!(
-            f.validate(2, &space(), 1e6),
+            f.validate(&bounds(2)),
             Err(ValidationError::Length { field: "x", .. })
         ));
         let mut f = fragment();
         f.rewards[0] = f32::NAN;
         assert!(matches!(
-            f.validate(2, &space(), 1e6),
+            f.validate(&bounds(2)),
             Err(ValidationError::NotFinite { .. })
         ));
         let mut f = fragment();
         f.truncated_next_x.clear();
-        assert!(f.validate(2, &space(), 1e6).is_err());
-        assert!(fragment().validate(3, &space(), 1e6).is_err());
+        assert!(f.validate(&bounds(2)).is_err());
+        assert!(fragment().validate(&bounds(3)).is_err());
         let mut f = fragment();
         f.visit_keys = vec![7];
         assert!(matches!(
-            f.validate(2, &space(), 1e6),
+            f.validate(&bounds(2)),
             Err(ValidationError::Length {
                 field: "visit_keys",
                 ..
             })
         ));
         f.visit_keys = vec![7, 8];
-        assert_eq!(f.validate(2, &space(), 1e6), Ok(()), "one key a step");
+        assert_eq!(f.validate(&bounds(2)), Ok(()), "one key a step");
     }
 
     #[test]
@@ -296,7 +445,7 @@ mod tests {
         let mut f = fragment();
         f.rewards[1] = 3e38;
         assert_eq!(
-            f.validate(2, &space(), 1e6),
+            f.validate(&bounds(2)),
             Err(ValidationError::Bound {
                 field: "rewards",
                 index: 1,
@@ -305,11 +454,103 @@ mod tests {
             })
         );
         f.rewards[1] = -1e6;
+        assert_eq!(f.validate(&bounds(2)), Ok(()), "the bound itself passes");
+    }
+
+    #[test]
+    fn absurd_but_finite_log_probs_and_inputs_are_refused() {
+        for (lp, ok) in [
+            (-3e38, false),
+            (-100.5, false),
+            (6.0, false),
+            (-100.0, true),
+            (5.0, true),
+        ] {
+            let mut f = fragment();
+            f.logp[1] = lp;
+            let got = f.validate(&bounds(2));
+            assert_eq!(got.is_ok(), ok, "logp {lp}: {got:?}");
+            if !ok {
+                assert!(matches!(
+                    got,
+                    Err(ValidationError::Range {
+                        field: "logp",
+                        index: 1,
+                        ..
+                    })
+                ));
+            }
+        }
+        let mut f = fragment();
+        f.x[3] = 2e6;
+        assert!(matches!(
+            f.validate(&bounds(2)),
+            Err(ValidationError::Bound {
+                field: "x",
+                index: 3,
+                ..
+            })
+        ));
+        let mut f = fragment();
+        f.last_next_x[0] = -3e38;
+        assert!(f.validate(&bounds(2)).is_err());
+        let mut f = fragment();
+        f.truncated_next_x[1] = 1e30;
+        assert!(f.validate(&bounds(2)).is_err());
+    }
+
+    #[test]
+    fn empty_fragments_and_more_episodes_than_ends_are_refused() {
+        let mut f = fragment();
+        f.x.clear();
+        f.rewards.clear();
+        f.logp.clear();
+        f.terminated.clear();
+        f.truncated.clear();
+        f.truncated_next_x.clear();
+        f.actions = ActionBatch::Continuous {
+            dim: 1,
+            data: vec![],
+        };
         assert_eq!(
-            f.validate(2, &space(), 1e6),
-            Ok(()),
-            "the bound itself passes"
+            f.validate(&bounds(2)),
+            Err(ValidationError::Empty { field: "rewards" })
         );
+        let episode = |ret, length| EpisodeStat {
+            ret,
+            length,
+            success: None,
+        };
+        // one step of the two ends an episode (truncated)
+        let mut f = fragment();
+        f.episodes = vec![episode(1.0, 2)];
+        assert_eq!(f.validate(&bounds(2)), Ok(()));
+        f.episodes = vec![episode(1.0, 2); 2];
+        assert!(matches!(
+            f.validate(&bounds(2)),
+            Err(ValidationError::Length {
+                expected: 1,
+                got: 2,
+                ..
+            })
+        ));
+        for bad in [
+            episode(1.0, 0),
+            episode(2.1e6, 2),
+            episode(f64::INFINITY, 9),
+            episode(1.0, 1001),
+            episode(1.7e308, u32::MAX),
+        ] {
+            f.episodes = vec![bad];
+            assert!(
+                matches!(
+                    f.validate(&bounds(2)),
+                    Err(ValidationError::Episode { index: 0, .. })
+                ),
+                "{:?}",
+                f.episodes
+            );
+        }
     }
 
     #[test]
@@ -328,7 +569,11 @@ mod tests {
             },
             terminated: vec![false],
         };
-        let err = batch.validate(&StateSpace::discrete(5), &ActionSpace::Discrete { n: 2 });
+        let err = batch.validate(
+            &StateSpace::discrete(5),
+            &ActionSpace::Discrete { n: 2 },
+            1e6,
+        );
         assert!(matches!(
             err,
             Err(ValidationError::OutOfRange { value: 5, .. })

@@ -6,12 +6,47 @@
 use jsae_proto::run_dir::LatestCheckpoint;
 use jsae_proto::wire::{self, Reassembler, pb};
 use jsae_proto::{
-    ActionBatch, ActionSpace, EvalReport, RolloutFragment, StateBatch, StateSpace, TransitionBatch,
+    ActionBatch, ActionSpace, EvalReport, FragmentBounds, RolloutFragment, StateBatch, StateSpace,
+    TransitionBatch,
 };
 use proptest::prelude::*;
 use prost::Message;
 
 const BOUND: f32 = 1e6;
+
+/// What a learner of policy inputs `x_dim` wide over `actions` accepts.
+fn bounds(x_dim: usize, actions: ActionSpace) -> FragmentBounds {
+    FragmentBounds {
+        x_dim,
+        actions,
+        max_abs_reward: BOUND,
+        logp: (-200.0, 5.0),
+        max_episode_steps: u32::MAX,
+    }
+}
+
+/// A fragment of one step with input `x`, log-probability `logp` and reward `reward`.
+fn one_step(x: f32, logp: f32, reward: f32) -> RolloutFragment {
+    RolloutFragment {
+        actor_id: 0,
+        env_index: 0,
+        policy_version: 0,
+        embedding_version: 0,
+        actor_env_steps: 1,
+        x_dim: 1,
+        x: vec![x],
+        actions: ActionBatch::Discrete(vec![0]),
+        logp: vec![logp],
+        rewards: vec![reward],
+        terminated: vec![false],
+        truncated: vec![false],
+        truncated_next_x: vec![],
+        last_next_x: vec![0.0],
+        episodes: vec![],
+        actor_incarnation: 1,
+        visit_keys: Vec::new(),
+    }
+}
 
 fn continuous() -> ActionSpace {
     ActionSpace::Continuous {
@@ -30,11 +65,13 @@ proptest! {
             && let Ok(f) = RolloutFragment::try_from(m)
         {
             for (x_dim, space) in [(f.x_dim, ActionSpace::Discrete { n: 8 }), (2, continuous())] {
-                if f.validate(x_dim, &space, BOUND).is_ok() {
+                if f.validate(&bounds(x_dim, space)).is_ok() {
                     let n = f.rewards.len();
                     prop_assert_eq!(f.x.len(), n * x_dim);
                     prop_assert!(f.rewards.iter().all(|r| r.is_finite() && r.abs() <= BOUND));
                     prop_assert_eq!((f.logp.len(), f.terminated.len(), f.truncated.len()), (n, n, n));
+                    prop_assert!(n > 0 && f.logp.iter().all(|l| (-200.0..=5.0).contains(l)));
+                    prop_assert!(f.episodes.len() <= n);
                 }
             }
         }
@@ -42,7 +79,7 @@ proptest! {
             && let Ok(t) = TransitionBatch::try_from(m)
         {
             for states in [StateSpace::discrete(16), StateSpace::Real { dim: 2 }] {
-                let _ = t.validate(&states, &ActionSpace::Discrete { n: 8 });
+                let _ = t.validate(&states, &ActionSpace::Discrete { n: 8 }, BOUND);
             }
         }
         if let Ok(m) = pb::EvalReport::decode(bytes.as_slice()) {
@@ -66,7 +103,7 @@ proptest! {
 
     #[test]
     fn valid_fragments_pass_and_survive_the_wire(
-        n in 0usize..24,
+        n in 1usize..24,
         x_dim in 1usize..4,
         seed in any::<u64>(),
         reward in -BOUND..=BOUND,
@@ -92,7 +129,7 @@ proptest! {
             actor_incarnation: seed | 1,
             visit_keys: Vec::new(),
         };
-        prop_assert_eq!(f.validate(x_dim, &ActionSpace::Discrete { n: 8 }, BOUND), Ok(()));
+        prop_assert_eq!(f.validate(&bounds(x_dim, ActionSpace::Discrete { n: 8 })), Ok(()));
         let wire = pb::RolloutFragment::from(f.clone()).encode_to_vec();
         let back = RolloutFragment::try_from(pb::RolloutFragment::decode(wire.as_slice()).expect("decodes"))
             .expect("converts");
@@ -101,27 +138,17 @@ proptest! {
 
     #[test]
     fn the_reward_bound_holds_exactly(reward in any::<f32>()) {
-        let f = RolloutFragment {
-            actor_id: 0,
-            env_index: 0,
-            policy_version: 0,
-            embedding_version: 0,
-            actor_env_steps: 1,
-            x_dim: 1,
-            x: vec![0.0],
-            actions: ActionBatch::Discrete(vec![0]),
-            logp: vec![-1.0],
-            rewards: vec![reward],
-            terminated: vec![false],
-            truncated: vec![false],
-            truncated_next_x: vec![],
-            last_next_x: vec![0.0],
-            episodes: vec![],
-            actor_incarnation: 1,
-            visit_keys: Vec::new(),
-        };
-        let ok = f.validate(1, &ActionSpace::Discrete { n: 2 }, BOUND).is_ok();
+        let f = one_step(0.0, -1.0, reward);
+        let ok = f.validate(&bounds(1, ActionSpace::Discrete { n: 2 })).is_ok();
         prop_assert_eq!(ok, reward.is_finite() && reward.abs() <= BOUND);
+    }
+
+    #[test]
+    fn the_log_prob_range_and_the_input_bound_hold_exactly(logp in any::<f32>(), x in any::<f32>()) {
+        let f = one_step(x, logp, 0.0);
+        let ok = f.validate(&bounds(1, ActionSpace::Discrete { n: 2 })).is_ok();
+        let x_ok = x.is_finite() && x.abs() <= jsae_proto::MAX_ABS_POLICY_INPUT;
+        prop_assert_eq!(ok, (-200.0..=5.0).contains(&logp) && x_ok);
     }
 
     #[test]
@@ -134,7 +161,7 @@ proptest! {
             next_states: StateBatch::Categorical { factors: 1, data: (0..n as u32).map(|i| (i + 1) % 16).collect() },
             terminated: (0..n).map(|i| i % 4 == 3).collect(),
         };
-        prop_assert_eq!(t.validate(&StateSpace::discrete(16), &ActionSpace::Discrete { n: 8 }), Ok(()));
+        prop_assert_eq!(t.validate(&StateSpace::discrete(16), &ActionSpace::Discrete { n: 8 }, BOUND), Ok(()));
         let wire = pb::TransitionBatch::from(t.clone()).encode_to_vec();
         let back = TransitionBatch::try_from(pb::TransitionBatch::decode(wire.as_slice()).expect("decodes"))
             .expect("converts");

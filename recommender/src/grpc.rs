@@ -88,7 +88,7 @@ impl pb::recommender_server::Recommender for RecommenderService {
         &self,
         request: Request<Streaming<pb::Session>>,
     ) -> Result<Response<pb::SubmitSummary>, Status> {
-        let answered = receive_sessions(&self.inner, &self.submits, request.into_inner())
+        let answered = receive_sessions(&self.inner, &self.submits, request)
             .await
             .map(Response::new);
         let (code, accepted, rejected) = match &answered {

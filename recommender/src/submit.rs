@@ -7,15 +7,24 @@
 //!
 //! Memory: a call holds one message, the batch being staged and the ids it staged (8 bytes
 //! each), never its stream. The limits below bound what the calls together hold and write.
+//!
+//! Fairness: a call holds one of [`MAX_CONCURRENT_CALLS`] slots only while it sends (it ends
+//! after [`SUBMIT_IDLE_TIMEOUT`] without a message, or [`SUBMIT_CALL_TIMEOUT`] in all); a
+//! call that finds every slot taken waits its turn (up to [`SLOT_WAIT`]), and one connection
+//! has at most [`MAX_CALLS_PER_CONNECTION`] calls at once.
 
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::net::SocketAddr;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
 
 use jsae_envs::recsys::sessions::{Session, check_session};
 use jsae_envs::recsys::staging::{Staged, StagedSessions};
 use jsae_proto::RpcError;
 use jsae_proto::wire::pb;
 use prost::Message;
+use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tonic::{Code, Status, Streaming};
 
 use crate::scoring::Recommender;
@@ -32,27 +41,58 @@ pub const MAX_CALL_BYTES: u64 = 64 * 1024 * 1024;
 /// Most bytes all the calls in progress together may have sent (and so staged on disk); a
 /// message past it is RESOURCE_EXHAUSTED for its call (nothing of it stored).
 pub const MAX_BYTES_IN_FLIGHT: u64 = 128 * 1024 * 1024;
-/// Most calls in progress at once; one more is RESOURCE_EXHAUSTED before it reads anything.
-/// Each holds at most one decoded message (up to about 60 MB for 4 MiB of the smallest
-/// purchases, typically a few MB), so this bounds the calls' memory.
+/// Most calls in progress at once. Each holds at most one decoded message (up to about
+/// 60 MB for 4 MiB of the smallest purchases, typically a few MB), so this bounds the calls'
+/// memory. A call beyond it waits for a slot, in arrival order, up to [`SLOT_WAIT`].
 pub const MAX_CONCURRENT_CALLS: usize = 4;
+/// Most calls one connection may have in progress (or waiting) at once; one more is
+/// RESOURCE_EXHAUSTED before it reads anything, so one client cannot queue for every slot.
+pub const MAX_CALLS_PER_CONNECTION: usize = 2;
+/// Most calls waiting for a slot at once; one more is RESOURCE_EXHAUSTED at once.
+pub const MAX_WAITING_CALLS: usize = 64;
+/// How long a call waits for a slot before it is RESOURCE_EXHAUSTED: longer than
+/// [`SUBMIT_IDLE_TIMEOUT`], so calls that hold slots without sending cannot keep a waiting
+/// call out.
+pub const SLOT_WAIT: Duration = Duration::from_secs(20);
+/// A call that sends no message for this long (from its start, or since its last message)
+/// ends DEADLINE_EXCEEDED, nothing of it stored, and gives its slot to the next.
+pub const SUBMIT_IDLE_TIMEOUT: Duration = Duration::from_secs(10);
+/// The longest a call may take from its start (64 MiB at 0.5 MB/s); past it the call ends
+/// DEADLINE_EXCEEDED, nothing of it stored.
+pub const SUBMIT_CALL_TIMEOUT: Duration = Duration::from_secs(120);
 /// Errors listed in a SubmitSummary (the count of rejected sessions is always exact).
 pub const MAX_ERRORS_LISTED: usize = 100;
 /// Checked sessions gathered before they are written to the staging file together.
 const STAGE_BATCH_BYTES: u64 = 1024 * 1024;
 
-/// What the SubmitSessions calls in progress use, against [`MAX_CONCURRENT_CALLS`] and
-/// [`MAX_BYTES_IN_FLIGHT`]; shared by the service's clones.
-#[derive(Debug, Clone, Default)]
+/// What the SubmitSessions calls in progress use: slots ([`MAX_CONCURRENT_CALLS`], handed
+/// out in arrival order), calls per connection ([`MAX_CALLS_PER_CONNECTION`]), calls
+/// waiting ([`MAX_WAITING_CALLS`]) and bytes ([`MAX_BYTES_IN_FLIGHT`]); shared by the
+/// service's clones.
+#[derive(Debug, Clone)]
 pub struct SubmitBudget {
-    calls: Arc<AtomicUsize>,
+    slots: Arc<Semaphore>,
+    waiting: Arc<AtomicUsize>,
+    /// Calls in progress or waiting, per connection (its peer's address).
+    connections: Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
     bytes: Arc<AtomicU64>,
 }
 
+impl Default for SubmitBudget {
+    fn default() -> Self {
+        Self {
+            slots: Arc::new(Semaphore::new(MAX_CONCURRENT_CALLS)),
+            waiting: Arc::default(),
+            connections: Arc::default(),
+            bytes: Arc::default(),
+        }
+    }
+}
+
 impl SubmitBudget {
-    /// Calls in progress now.
+    /// Calls in progress now (holding a slot).
     pub fn calls(&self) -> usize {
-        self.calls.load(Ordering::SeqCst)
+        MAX_CONCURRENT_CALLS - self.slots.available_permits()
     }
 
     /// Bytes the calls in progress have sent.
@@ -60,20 +100,84 @@ impl SubmitBudget {
         self.bytes.load(Ordering::SeqCst)
     }
 
-    /// A call's share, if one more call fits.
-    fn enter(&self) -> Result<CallBudget, RpcError> {
-        let before = self.calls.fetch_add(1, Ordering::SeqCst);
-        let call = CallBudget {
-            budget: self.clone(),
-            bytes: 0,
-        };
-        if before >= MAX_CONCURRENT_CALLS {
+    /// A call's share, once a slot is free (waiting at most [`SLOT_WAIT`], after the calls
+    /// that came before it), unless its connection has [`MAX_CALLS_PER_CONNECTION`] calls
+    /// already or [`MAX_WAITING_CALLS`] wait.
+    async fn enter(&self, connection: Option<SocketAddr>) -> Result<CallBudget, RpcError> {
+        let connection = ConnectionCall::enter(&self.connections, connection)?;
+        let waiting = self.waiting.fetch_add(1, Ordering::SeqCst);
+        let _waiting = Counted(&self.waiting);
+        if waiting >= MAX_WAITING_CALLS {
             return Err(RpcError::ResourceExhausted(format!(
-                "{MAX_CONCURRENT_CALLS} SubmitSessions calls are in progress \
-                 (MAX_CONCURRENT_CALLS): try again when one has ended"
+                "{MAX_CONCURRENT_CALLS} SubmitSessions calls are in progress and \
+                 {MAX_WAITING_CALLS} wait (MAX_WAITING_CALLS): try again later"
             )));
         }
-        Ok(call)
+        let slot = tokio::time::timeout(SLOT_WAIT, self.slots.clone().acquire_owned())
+            .await
+            .map_err(|_| {
+                RpcError::ResourceExhausted(format!(
+                    "all {MAX_CONCURRENT_CALLS} SubmitSessions slots (MAX_CONCURRENT_CALLS) stayed \
+                     busy for {} s (SLOT_WAIT): try again later",
+                    SLOT_WAIT.as_secs()
+                ))
+            })?
+            .map_err(|_| RpcError::shutting_down("recommender"))?;
+        Ok(CallBudget {
+            budget: self.clone(),
+            bytes: 0,
+            _slot: slot,
+            _connection: connection,
+        })
+    }
+}
+
+/// Takes one off a counter when dropped.
+struct Counted<'a>(&'a AtomicUsize);
+
+impl Drop for Counted<'_> {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// A call counted against its connection's [`MAX_CALLS_PER_CONNECTION`] while it lives.
+#[derive(Debug)]
+struct ConnectionCall {
+    connections: Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
+    peer: Option<SocketAddr>,
+}
+
+impl ConnectionCall {
+    fn enter(
+        connections: &Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
+        peer: Option<SocketAddr>,
+    ) -> Result<Self, RpcError> {
+        let mut calls = connections.lock().unwrap_or_else(|e| e.into_inner());
+        let n = calls.entry(peer).or_default();
+        if *n >= MAX_CALLS_PER_CONNECTION {
+            return Err(RpcError::ResourceExhausted(format!(
+                "this connection has {MAX_CALLS_PER_CONNECTION} SubmitSessions calls in progress \
+                 (MAX_CALLS_PER_CONNECTION): wait for one to end"
+            )));
+        }
+        *n += 1;
+        Ok(Self {
+            connections: connections.clone(),
+            peer,
+        })
+    }
+}
+
+impl Drop for ConnectionCall {
+    fn drop(&mut self) {
+        let mut calls = self.connections.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some(n) = calls.get_mut(&self.peer) {
+            *n -= 1;
+            if *n == 0 {
+                calls.remove(&self.peer);
+            }
+        }
     }
 }
 
@@ -82,6 +186,8 @@ impl SubmitBudget {
 struct CallBudget {
     budget: SubmitBudget,
     bytes: u64,
+    _slot: OwnedSemaphorePermit,
+    _connection: ConnectionCall,
 }
 
 impl CallBudget {
@@ -108,7 +214,26 @@ impl CallBudget {
 impl Drop for CallBudget {
     fn drop(&mut self) {
         self.budget.bytes.fetch_sub(self.bytes, Ordering::SeqCst);
-        self.budget.calls.fetch_sub(1, Ordering::SeqCst);
+    }
+}
+
+/// The next message of a call, or DEADLINE_EXCEEDED once [`SUBMIT_IDLE_TIMEOUT`] passes
+/// without one or the call's `deadline` passes.
+async fn next_message(
+    stream: &mut Streaming<pb::Session>,
+    deadline: tokio::time::Instant,
+) -> Result<Option<pb::Session>, Status> {
+    let idle = tokio::time::Instant::now() + SUBMIT_IDLE_TIMEOUT;
+    match tokio::time::timeout_at(idle.min(deadline), stream.message()).await {
+        Ok(message) => message.map_err(broken_stream),
+        Err(_) if idle <= deadline => Err(Status::deadline_exceeded(format!(
+            "no message for {} s (SUBMIT_IDLE_TIMEOUT)",
+            SUBMIT_IDLE_TIMEOUT.as_secs()
+        ))),
+        Err(_) => Err(Status::deadline_exceeded(format!(
+            "the call took over {} s (SUBMIT_CALL_TIMEOUT): send the sessions in smaller calls",
+            SUBMIT_CALL_TIMEOUT.as_secs()
+        ))),
     }
 }
 
@@ -197,9 +322,12 @@ impl Stager {
 pub(crate) async fn receive_sessions(
     inner: &Arc<Recommender>,
     budget: &SubmitBudget,
-    mut stream: Streaming<pb::Session>,
+    request: tonic::Request<Streaming<pb::Session>>,
 ) -> Result<pb::SubmitSummary, Status> {
-    let mut call = budget.enter().map_err(nothing_stored)?;
+    let deadline = tokio::time::Instant::now() + SUBMIT_CALL_TIMEOUT;
+    let peer = request.remote_addr();
+    let mut stream = request.into_inner();
+    let mut call = budget.enter(peer).await.map_err(nothing_stored)?;
     let mut stager = inner.stage()?.map(|staged| Stager {
         staged: Some(staged),
         batch: Vec::new(),
@@ -208,10 +336,9 @@ pub(crate) async fn receive_sessions(
     });
     let mut summary = pb::SubmitSummary::default();
     let mut index: u64 = 0;
-    while let Some(message) = stream
-        .message()
+    while let Some(message) = next_message(&mut stream, deadline)
         .await
-        .map_err(|s| nothing_stored(broken_stream(s)))?
+        .map_err(nothing_stored)?
     {
         let bytes = message.encoded_len() as u64;
         call.take(bytes).map_err(nothing_stored)?;
@@ -276,34 +403,86 @@ mod tests {
 
     const MIB: u64 = 1024 * 1024;
 
-    #[test]
-    fn calls_stay_within_their_bytes_the_bytes_in_flight_and_the_calls_at_once() {
+    fn peer(port: u16) -> Option<SocketAddr> {
+        Some(SocketAddr::from(([127, 0, 0, 1], port)))
+    }
+
+    #[tokio::test]
+    async fn calls_stay_within_their_bytes_the_bytes_in_flight_and_the_calls_at_once() {
         let budget = SubmitBudget::default();
-        let mut a = budget.enter().expect("a first call");
+        let mut a = budget.enter(peer(1)).await.expect("a first call");
         a.take(MAX_CALL_BYTES - 1).expect("within MAX_CALL_BYTES");
         let over = a.take(2).expect_err("over MAX_CALL_BYTES");
         assert!(over.to_string().contains("MAX_CALL_BYTES"), "{over}");
-        let mut b = budget.enter().expect("a second call");
+        let mut b = budget.enter(peer(2)).await.expect("a second call");
         b.take(MAX_BYTES_IN_FLIGHT - MAX_CALL_BYTES)
             .expect("within");
-        let mut c = budget.enter().expect("a third call");
+        let mut c = budget.enter(peer(3)).await.expect("a third call");
         let over = c.take(2 * MIB).expect_err("over MAX_BYTES_IN_FLIGHT");
         assert!(over.to_string().contains("MAX_BYTES_IN_FLIGHT"), "{over}");
         drop(c);
         drop(a);
         assert_eq!(budget.bytes(), MAX_BYTES_IN_FLIGHT - MAX_CALL_BYTES);
-        let mut d = budget.enter().expect("room again");
+        let mut d = budget.enter(peer(4)).await.expect("room again");
         d.take(2 * MIB).expect("within");
-
-        let mut open: Vec<CallBudget> = (budget.calls()..MAX_CONCURRENT_CALLS)
-            .map(|_| budget.enter().expect("room"))
-            .collect();
-        let refused = budget.enter().expect_err("one call too many");
-        assert!(refused.to_string().contains("MAX_CONCURRENT_CALLS"));
-        assert_eq!(budget.calls(), MAX_CONCURRENT_CALLS);
-        open.pop();
-        budget.enter().expect("a call ended: room for one");
-        drop((open, b, d));
+        drop((b, d));
         assert_eq!((budget.calls(), budget.bytes()), (0, 0));
+    }
+
+    #[tokio::test]
+    async fn one_connection_holds_at_most_its_share_of_the_calls() {
+        let budget = SubmitBudget::default();
+        let held: Vec<CallBudget> = calls_from(&budget, peer(9), MAX_CALLS_PER_CONNECTION).await;
+        let refused = budget.enter(peer(9)).await.expect_err("one call too many");
+        assert!(
+            refused.to_string().contains("MAX_CALLS_PER_CONNECTION"),
+            "{refused}"
+        );
+        budget
+            .enter(peer(10))
+            .await
+            .expect("another connection has room");
+        drop(held);
+        budget
+            .enter(peer(9))
+            .await
+            .expect("the connection's calls ended");
+    }
+
+    #[tokio::test(start_paused = true)]
+    async fn a_call_past_the_slots_waits_its_turn_then_gives_up() {
+        let budget = SubmitBudget::default();
+        let mut held = Vec::new();
+        for port in 0..MAX_CONCURRENT_CALLS as u16 {
+            held.push(budget.enter(peer(port)).await.expect("a slot"));
+        }
+        assert_eq!(budget.calls(), MAX_CONCURRENT_CALLS);
+        // a slot freed while it waits: the waiting call takes it
+        let waiting = {
+            let budget = budget.clone();
+            tokio::spawn(async move { budget.enter(peer(100)).await.map(|_| ()) })
+        };
+        tokio::time::sleep(SLOT_WAIT / 2).await;
+        held.pop();
+        waiting.await.expect("task").expect("the freed slot");
+        // no slot freed within SLOT_WAIT: RESOURCE_EXHAUSTED
+        held.push(budget.enter(peer(50)).await.expect("the last slot"));
+        let refused = budget
+            .enter(peer(101))
+            .await
+            .expect_err("every slot stayed busy");
+        assert!(refused.to_string().contains("SLOT_WAIT"), "{refused}");
+    }
+
+    async fn calls_from(
+        budget: &SubmitBudget,
+        at: Option<SocketAddr>,
+        n: usize,
+    ) -> Vec<CallBudget> {
+        let mut calls = Vec::new();
+        for _ in 0..n {
+            calls.push(budget.enter(at).await.expect("room"));
+        }
+        calls
     }
 }

@@ -1,8 +1,9 @@
 //! `SubmitSessions` over real loopback gRPC against a Recommender with a session store
 //! (serving the popular reference policy: no run needed): a call whose stream the client
-//! resets (cancels) mid-way stores nothing, a session_id is stored once across calls and restarts, and the limits on bytes
-//! per message, bytes per call and calls at once answer RESOURCE_EXHAUSTED with nothing of
-//! the call stored.
+//! resets (cancels) mid-way stores nothing, a session_id is stored once across calls and
+//! restarts, the limits on bytes per message, bytes per call and calls per connection answer
+//! RESOURCE_EXHAUSTED with nothing of the call stored, and calls that send nothing give
+//! their slots up to a call that waits its turn.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -11,7 +12,10 @@ use std::time::{Duration, Instant};
 use jsae_proto::settings::{Algo, EnvName, SessionSource, TrainConfig};
 use jsae_proto::wire::pb;
 use jsae_recommender::baseline::PolicyChoice;
-use jsae_recommender::{MAX_CALL_BYTES, MAX_CONCURRENT_CALLS, Recommender, WeightSources};
+use jsae_recommender::{
+    MAX_CALL_BYTES, MAX_CALLS_PER_CONNECTION, MAX_CONCURRENT_CALLS, Recommender,
+    SUBMIT_IDLE_TIMEOUT, WeightSources,
+};
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;
@@ -21,6 +25,7 @@ type Client = pb::recommender_client::RecommenderClient<tonic::transport::Channe
 /// A Recommender served on loopback until dropped or stopped.
 struct Served {
     client: Client,
+    url: String,
     stop: oneshot::Sender<()>,
     task: tokio::task::JoinHandle<anyhow::Result<()>>,
 }
@@ -67,8 +72,13 @@ async fn serve(store: &Path) -> Served {
             let _ = stopped.await;
         },
     ));
-    let client = Client::connect(url).await.expect("connects");
-    Served { client, stop, task }
+    let client = Client::connect(url.clone()).await.expect("connects");
+    Served {
+        client,
+        url,
+        stop,
+        task,
+    }
 }
 
 /// A session of `purchases` purchases of items with ids of `id_bytes` bytes.
@@ -262,32 +272,91 @@ async fn a_call_over_its_byte_limit_or_a_message_over_the_size_limit_stores_noth
     let _ = std::fs::remove_dir_all(&store);
 }
 
+/// A call on `client` that sends `first` (if any) and then nothing until its sender drops.
+fn open_call(
+    client: &Client,
+    first: Option<pb::Session>,
+) -> (
+    mpsc::Sender<pb::Session>,
+    tokio::task::JoinHandle<Result<tonic::Response<pb::SubmitSummary>, tonic::Status>>,
+) {
+    let (tx, rx) = mpsc::channel(1);
+    if let Some(first) = first {
+        tx.try_send(first).expect("room for one");
+    }
+    let mut client = client.clone();
+    let call = tokio::spawn(async move { client.submit_sessions(ReceiverStream::new(rx)).await });
+    (tx, call)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-async fn a_call_beyond_the_calls_at_once_is_refused_and_the_others_go_on() {
+async fn idle_calls_give_their_slots_up_and_a_waiting_call_gets_its_turn() {
+    let store = temp_store("idle");
+    let mut served = serve(&store).await;
+    // every slot taken by a call that sends nothing, each on a connection of its own
+    let mut idle = Vec::new();
+    for _ in 0..MAX_CONCURRENT_CALLS {
+        let client = Client::connect(served.url.clone()).await.expect("connects");
+        idle.push(open_call(&client, None));
+    }
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    // another client's call waits its turn instead of being refused
+    let started = Instant::now();
+    let summary = submit(&mut served.client, vec![session("waited", 2, 8)]).await;
+    assert_eq!(summary.sessions_accepted, 1);
+    let waited = started.elapsed();
+    assert!(
+        waited < SUBMIT_IDLE_TIMEOUT + Duration::from_secs(5),
+        "waited {waited:?}"
+    );
+    for (tx, call) in idle {
+        let refused = call.await.expect("task").expect_err("idle too long");
+        assert_eq!(refused.code(), Code::DeadlineExceeded, "{refused:?}");
+        assert!(
+            refused.message().contains("SUBMIT_IDLE_TIMEOUT"),
+            "{refused:?}"
+        );
+        assert!(
+            refused
+                .message()
+                .contains("nothing of this call was stored")
+        );
+        drop(tx);
+    }
+    served.stop().await;
+    assert_eq!(stored_ids(&store), ["waited"]);
+    let _ = std::fs::remove_dir_all(&store);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn one_connection_cannot_take_more_than_its_calls_and_the_others_go_on() {
     let store = temp_store("calls");
     let mut served = serve(&store).await;
     let mut open = Vec::new();
-    for i in 0..MAX_CONCURRENT_CALLS {
-        let (tx, rx) = mpsc::channel(1);
-        tx.send(session(&format!("open-{i}"), 2, 8))
-            .await
-            .expect("sent");
-        let mut client = served.client.clone();
-        let call =
-            tokio::spawn(async move { client.submit_sessions(ReceiverStream::new(rx)).await });
-        open.push((tx, call));
+    for i in 0..MAX_CALLS_PER_CONNECTION {
+        open.push(open_call(
+            &served.client,
+            Some(session(&format!("open-{i}"), 2, 8)),
+        ));
     }
     wait_for("the open calls to start staging", || {
-        staging(&store).0 == MAX_CONCURRENT_CALLS
+        staging(&store).0 == MAX_CALLS_PER_CONNECTION
     })
     .await;
     let refused = served
         .client
         .submit_sessions(tokio_stream::iter(vec![session("one-more", 2, 8)]))
         .await
-        .expect_err("one call too many");
+        .expect_err("one call too many on this connection");
     assert_eq!(refused.code(), Code::ResourceExhausted, "{refused:?}");
-    assert!(refused.message().contains("MAX_CONCURRENT_CALLS"));
+    assert!(
+        refused.message().contains("MAX_CALLS_PER_CONNECTION"),
+        "{refused:?}"
+    );
+    // another connection has room
+    let mut other = Client::connect(served.url.clone()).await.expect("connects");
+    let summary = submit(&mut other, vec![session("other", 2, 8)]).await;
+    assert_eq!(summary.sessions_accepted, 1);
     for (tx, call) in open {
         drop(tx);
         let summary = call.await.expect("task").expect("stored").into_inner();
@@ -297,6 +366,6 @@ async fn a_call_beyond_the_calls_at_once_is_refused_and_the_others_go_on() {
     let summary = submit(&mut served.client, vec![session("one-more", 2, 8)]).await;
     assert_eq!(summary.sessions_accepted, 1);
     served.stop().await;
-    assert_eq!(stored_ids(&store).len(), MAX_CONCURRENT_CALLS + 1);
+    assert_eq!(stored_ids(&store).len(), MAX_CALLS_PER_CONNECTION + 2);
     let _ = std::fs::remove_dir_all(&store);
 }

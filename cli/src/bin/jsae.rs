@@ -23,5 +23,5 @@ fn main() -> std::process::ExitCode {
     if let Some(format) = cli.log_format {
         jsae_proto::logging::choose_log_format(format);
     }
-    jsae_cli::commands::run(cli.command)
+    jsae_cli::closed_pipe::run(|| jsae_cli::commands::run(cli.command))
 }

@@ -152,3 +152,42 @@ pub fn start_recommender<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> (Server, Stri
     let addr = first.trim().rsplit(' ').next().expect("an address");
     (server, addr.to_owned())
 }
+
+/// A process as /proc shows it.
+#[allow(dead_code, reason = "not every test crate looks at processes")]
+#[derive(Debug, Clone)]
+pub struct ProcessInfo {
+    /// Its id.
+    pub pid: u32,
+    /// Its parent's id.
+    pub ppid: u32,
+    /// Its command line, the arguments joined by NUL bytes.
+    pub cmdline: String,
+    /// Whether it runs (not gone, not a zombie waiting to be reaped).
+    pub running: bool,
+}
+
+/// Every process now (from /proc).
+#[allow(dead_code, reason = "not every test crate looks at processes")]
+pub fn processes() -> Vec<ProcessInfo> {
+    let Ok(entries) = std::fs::read_dir("/proc") else {
+        return Vec::new();
+    };
+    entries
+        .filter_map(|e| e.ok()?.file_name().to_str()?.parse::<u32>().ok())
+        .filter_map(|pid| {
+            let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+            // "pid (comm) state ppid ...": the fields after the last ')'
+            let mut after = stat.rsplit(')').next()?.split_whitespace();
+            let state = after.next()?;
+            let ppid = after.next()?.parse().ok()?;
+            let cmdline = std::fs::read(format!("/proc/{pid}/cmdline")).unwrap_or_default();
+            Some(ProcessInfo {
+                pid,
+                ppid,
+                cmdline: String::from_utf8_lossy(&cmdline).into_owned(),
+                running: state != "Z" && state != "X",
+            })
+        })
+        .collect()
+}

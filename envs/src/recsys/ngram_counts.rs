@@ -83,7 +83,8 @@ impl NgramCounts {
             .iter()
             .filter_map(|p| {
                 let k = catalogue.slot(&p.item_id)?;
-                if p.price > 0.0 {
+                // a price no session may carry now (stored before the bound) is not counted
+                if p.price > 0.0 && super::sessions::valid_price(p.price) {
                     self.price_sum[k as usize] += p.price;
                     self.price_n[k as usize] = self.price_n[k as usize].saturating_add(1);
                 }

@@ -8,6 +8,15 @@ use serde::{Deserialize, Serialize};
 pub const MAX_PURCHASES_PER_SESSION: usize = 10_000;
 /// Longest `session_id` or `item_id`, in bytes.
 pub const MAX_ID_BYTES: usize = 256;
+/// Highest price of one purchase: a reward of one purchase stays within the learner's
+/// default reward bound (`ppo.max_abs_reward`, 10^6), and sums of many stay finite.
+pub const MAX_PRICE: f64 = 1e6;
+
+/// Whether a price is one the service stores and the model counts: finite, in
+/// `[0, MAX_PRICE]`.
+pub fn valid_price(price: f64) -> bool {
+    (0.0..=MAX_PRICE).contains(&price)
+}
 
 /// One purchase.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -47,14 +56,59 @@ pub fn bytes_hash(bytes: &[u8]) -> u64 {
     h ^ (h >> 31)
 }
 
-/// The [`bytes_hash`] of an id: the session store's index of stored sessions and the
-/// held-out split are made of it.
+/// The [`bytes_hash`] of an id: the held-out split is made of it. Anyone can compute it, so
+/// it never decides whether a session is stored ([`IdKey`] does).
 pub fn id_hash(id: &str) -> u64 {
     bytes_hash(id.as_bytes())
 }
 
+/// A session store's secret key for the hash of session ids in its index (SipHash-1-3): a
+/// client who does not know it cannot make an id of its own collide with another client's
+/// and have that session counted as a duplicate and dropped. Drawn at random when a store is
+/// created (from the operating system's entropy), kept in the store (`id_key`).
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub struct IdKey(pub [u64; 2]);
+
+impl std::fmt::Debug for IdKey {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("IdKey(..)")
+    }
+}
+
+impl IdKey {
+    /// A fresh random key.
+    pub fn random() -> Self {
+        Self([rand::random(), rand::random()])
+    }
+
+    /// The keyed hash of a session id.
+    pub fn hash(&self, id: &str) -> u64 {
+        use std::hash::Hasher;
+        let mut h = siphasher::sip::SipHasher13::new_with_keys(self.0[0], self.0[1]);
+        h.write(id.as_bytes());
+        h.finish()
+    }
+
+    /// As the key file holds it: 32 hex digits and a newline.
+    pub fn to_text(self) -> String {
+        format!("{:016x}{:016x}\n", self.0[0], self.0[1])
+    }
+
+    /// From [`Self::to_text`]'s text.
+    pub fn from_text(text: &str) -> Option<Self> {
+        let t = text.trim_end();
+        if t.len() != 32 || !t.is_ascii() {
+            return None;
+        }
+        let k0 = u64::from_str_radix(&t[..16], 16).ok()?;
+        let k1 = u64::from_str_radix(&t[16..], 16).ok()?;
+        Some(Self([k0, k1]))
+    }
+}
+
 /// Why a session is malformed (CONTRACT.md: empty id, no purchases, an empty item id, a
-/// negative, NaN or infinite price), or over the documented limits.
+/// negative, NaN or infinite price), or over the documented limits (a price over
+/// [`MAX_PRICE`] included).
 pub fn check_session(session: &Session) -> Result<(), String> {
     if session.session_id.is_empty() {
         return Err("session_id is empty".into());
@@ -80,9 +134,9 @@ pub fn check_session(session: &Session) -> Result<(), String> {
                 "purchase {i}: item_id is longer than {MAX_ID_BYTES} bytes"
             ));
         }
-        if !(p.price.is_finite() && p.price >= 0.0) {
+        if !valid_price(p.price) {
             return Err(format!(
-                "purchase {i}: price {} is not a finite number >= 0",
+                "purchase {i}: price {} is not a number in [0, {MAX_PRICE}]",
                 p.price
             ));
         }
@@ -144,7 +198,7 @@ mod tests {
 
     #[test]
     fn the_contracts_malformed_sessions_are_refused_with_a_reason() {
-        assert!(check_session(&session("s", &[("a", 1.0), ("b", 0.0)])).is_ok());
+        assert!(check_session(&session("s", &[("a", 1.0), ("b", 0.0), ("c", MAX_PRICE)])).is_ok());
         for (bad, reason) in [
             (session("", &[("a", 1.0)]), "session_id"),
             (session("s", &[]), "no purchases"),
@@ -152,6 +206,8 @@ mod tests {
             (session("s", &[("a", -1.0)]), "price"),
             (session("s", &[("a", f64::NAN)]), "price"),
             (session("s", &[("a", f64::INFINITY)]), "price"),
+            (session("s", &[("a", 1.7e308)]), "price 170000000"),
+            (session("s", &[("a", MAX_PRICE * 1.01)]), "price"),
             (
                 session("s", &[("a", 1.0); MAX_PURCHASES_PER_SESSION + 1]),
                 "purchases, more than",

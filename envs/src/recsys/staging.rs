@@ -12,7 +12,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::RecsysError;
-use super::sessions::{Session, id_hash};
+use super::sessions::Session;
 use super::store::StoredIds;
 
 /// Where a store's calls stage their sessions (`STORE/staging/`); shared, so that calls start
@@ -48,7 +48,7 @@ impl StagingArea {
 /// One staged session: its line in the staging file.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct StagedLine {
-    /// [`id_hash`] of its `session_id`.
+    /// The store's keyed hash of its `session_id` ([`StoredIds::hash`]).
     pub(super) hash: u64,
     /// Bytes of its line, the newline included (lines follow each other in the file).
     pub(super) bytes: u64,
@@ -105,7 +105,7 @@ impl StagedSessions {
     /// was staged before in this call (a duplicate: not written, not an error). The write
     /// goes to the page cache, not to the disk: only a commit syncs.
     pub fn push(&mut self, session: &Session) -> Result<Staged, RecsysError> {
-        let hash = id_hash(&session.session_id);
+        let hash = self.stored.hash(&session.session_id);
         if self.hashes.contains(&hash) || self.stored.contains_hash(hash) {
             return Ok(Staged::Duplicate);
         }

@@ -11,10 +11,15 @@
 //!   syncs that, then writes this record beside and renames it into place: a call's sessions
 //!   are all in the store or none are. A store written before this record existed is
 //!   committed up to its last complete line (the writer adds the record when it opens it).
-//! - `session_ids.bin`: the index, `M` little-endian u64 [`id_hash`]es of the stored
-//!   sessions' ids, in log order. Entries past `M` (a failed commit's) are cut off when the
-//!   writer opens the store; a shorter file (lost, or from an older store) is rebuilt from
-//!   the log. A `session_id` that is stored already is never stored again, across restarts.
+//! - `id_key`: the store's secret key ([`IdKey`], 32 hex digits), drawn when the store is
+//!   created; the index hashes ids with it, so no client can make its id collide with
+//!   another's. A store without one (from an older version) gets one, and its index is
+//!   rebuilt with it.
+//! - `session_ids.bin`: the index, `M` little-endian u64 keyed hashes ([`IdKey::hash`]) of
+//!   the stored sessions' ids, in log order. Entries past `M` (a failed commit's) are cut
+//!   off when the writer opens the store; a shorter file (lost, or from an older store) is
+//!   rebuilt from the log. A `session_id` that is stored already is never stored again,
+//!   across restarts.
 //! - `staging/`: one file per call in progress ([`StagedSessions`]), emptied when the writer
 //!   opens the store.
 //! - `catalogue.json` and `model_counts.json` belong to the model (`data`,
@@ -22,8 +27,9 @@
 //!
 //! The writer holds a file lock on the log (one writer per store), the committed record and
 //! the set of stored id hashes: 8 bytes per stored session plus the hash set's overhead, never
-//! a session's body. Two different ids with the same 64-bit hash would make the second a
-//! duplicate: a chance of about 3 in 10^8 among 10^6 stored sessions (n^2 / 2^65).
+//! a session's body. Two different ids with the same 64-bit keyed hash would make the second
+//! a duplicate: by chance only (the key is secret), about 3 in 10^8 among 10^6 stored
+//! sessions (n^2 / 2^65).
 
 use std::collections::HashSet;
 use std::fs::File;
@@ -34,7 +40,7 @@ use std::sync::{Arc, RwLock};
 use serde::{Deserialize, Serialize};
 
 use super::RecsysError;
-use super::sessions::{Session, id_hash};
+use super::sessions::{IdKey, Session};
 use super::staging::{Staged, StagedSessions, StagingArea};
 
 /// The store's log of sessions in `dir`.
@@ -48,6 +54,31 @@ fn commit_file(dir: &Path) -> PathBuf {
 
 fn index_file(dir: &Path) -> PathBuf {
     dir.join("session_ids.bin")
+}
+
+fn key_file(dir: &Path) -> PathBuf {
+    dir.join("id_key")
+}
+
+/// The store's key, and whether it was drawn now (the store had none). A key file that
+/// cannot be read as a key is an error, naming it: a new key would change every hash.
+fn read_or_create_key(dir: &Path) -> Result<(IdKey, bool), RecsysError> {
+    let path = key_file(dir);
+    match std::fs::read_to_string(&path) {
+        Ok(text) => IdKey::from_text(&text).map(|k| (k, false)).ok_or_else(|| {
+            RecsysError::Data(format!(
+                "session store {}: not a key (32 hex digits); restore it from a backup, or \
+                 delete it to draw a new one and rebuild the index",
+                path.display()
+            ))
+        }),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            let key = IdKey::random();
+            replace_file(&path, key.to_text().as_bytes())?;
+            Ok((key, true))
+        }
+        Err(e) => Err(io(&path)(e)),
+    }
 }
 
 fn staging_dir(dir: &Path) -> PathBuf {
@@ -107,19 +138,34 @@ pub fn read_commit(dir: &Path) -> Result<Option<CommitRecord>, RecsysError> {
     }
 }
 
-/// The hashes of the stored sessions' ids, shared by the writer (which adds a commit's) and
-/// the calls staging sessions (which skip ids stored already).
-#[derive(Debug, Clone, Default)]
-pub struct StoredIds(Arc<RwLock<HashSet<u64>>>);
+/// The keyed hashes of the stored sessions' ids, shared by the writer (which adds a
+/// commit's) and the calls staging sessions (which skip ids stored already).
+#[derive(Debug, Clone)]
+pub struct StoredIds {
+    key: IdKey,
+    hashes: Arc<RwLock<HashSet<u64>>>,
+}
 
 impl StoredIds {
+    fn new(key: IdKey) -> Self {
+        Self {
+            key,
+            hashes: Arc::default(),
+        }
+    }
+
+    /// The store's keyed hash of a session id.
+    pub fn hash(&self, session_id: &str) -> u64 {
+        self.key.hash(session_id)
+    }
+
     /// Whether a session with this id is stored.
     pub fn contains(&self, session_id: &str) -> bool {
-        self.contains_hash(id_hash(session_id))
+        self.contains_hash(self.hash(session_id))
     }
 
     pub(super) fn contains_hash(&self, hash: u64) -> bool {
-        self.0
+        self.hashes
             .read()
             .unwrap_or_else(|p| p.into_inner())
             .contains(&hash)
@@ -127,7 +173,7 @@ impl StoredIds {
 
     /// Stored sessions (distinct id hashes).
     pub fn len(&self) -> usize {
-        self.0.read().unwrap_or_else(|p| p.into_inner()).len()
+        self.hashes.read().unwrap_or_else(|p| p.into_inner()).len()
     }
 
     /// Whether nothing is stored.
@@ -136,7 +182,7 @@ impl StoredIds {
     }
 
     fn insert(&self, hashes: impl IntoIterator<Item = u64>) {
-        self.0
+        self.hashes
             .write()
             .unwrap_or_else(|p| p.into_inner())
             .extend(hashes);
@@ -226,8 +272,9 @@ fn each_line(
     }
 }
 
-/// The id hashes of the log's complete lines up to `limit`, and where the last one ends.
-fn scan_ids(path: &Path, limit: u64) -> Result<(Vec<u64>, u64), RecsysError> {
+/// The keyed id hashes of the log's complete lines up to `limit`, and where the last one
+/// ends.
+fn scan_ids(path: &Path, limit: u64, key: IdKey) -> Result<(Vec<u64>, u64), RecsysError> {
     #[derive(Deserialize)]
     struct Id {
         session_id: String,
@@ -235,7 +282,7 @@ fn scan_ids(path: &Path, limit: u64) -> Result<(Vec<u64>, u64), RecsysError> {
     let mut hashes = Vec::new();
     let end = each_line(path, 0, limit, |line, _| {
         match serde_json::from_slice::<Id>(line) {
-            Ok(id) => hashes.push(id_hash(&id.session_id)),
+            Ok(id) => hashes.push(key.hash(&id.session_id)),
             Err(e) => tracing::warn!("session store {}: skipping a line: {e}", path.display()),
         }
     })?;
@@ -308,6 +355,7 @@ impl SessionStore {
         std::fs::create_dir_all(&staging).map_err(io(&staging))?;
 
         let log_len = log.metadata().map_err(io(&path))?.len();
+        let (key, new_key) = read_or_create_key(dir)?;
         let (committed, hashes) = match read_commit(dir)? {
             Some(r) if log_len < r.log_bytes => {
                 return Err(RecsysError::Data(format!(
@@ -316,11 +364,13 @@ impl SessionStore {
                     r.log_bytes
                 )));
             }
+            // an index hashed without this key (a key just drawn) is rebuilt with it
+            Some(r) if new_key => Self::rebuild_index(dir, r.log_bytes, key)?,
             Some(r) => match read_index(&index_file(dir), r.sessions)? {
                 Some(hashes) => (r, hashes),
-                None => Self::rebuild_index(dir, r.log_bytes)?,
+                None => Self::rebuild_index(dir, r.log_bytes, key)?,
             },
-            None => Self::rebuild_index(dir, log_len)?,
+            None => Self::rebuild_index(dir, log_len, key)?,
         };
         if log_len > committed.log_bytes {
             tracing::warn!(
@@ -339,7 +389,7 @@ impl SessionStore {
         index
             .set_len(committed.sessions * 8)
             .map_err(io(&index_path))?;
-        let ids = StoredIds::default();
+        let ids = StoredIds::new(key);
         ids.insert(hashes);
         Ok(Self {
             dir: dir.to_owned(),
@@ -353,8 +403,12 @@ impl SessionStore {
 
     /// Writes the index of the log's complete lines up to `limit` and the commit record that
     /// covers them.
-    fn rebuild_index(dir: &Path, limit: u64) -> Result<(CommitRecord, Vec<u64>), RecsysError> {
-        let (hashes, log_bytes) = scan_ids(&sessions_file(dir), limit)?;
+    fn rebuild_index(
+        dir: &Path,
+        limit: u64,
+        key: IdKey,
+    ) -> Result<(CommitRecord, Vec<u64>), RecsysError> {
+        let (hashes, log_bytes) = scan_ids(&sessions_file(dir), limit, key)?;
         replace_file(&index_file(dir), &index_bytes(&hashes))?;
         let record = CommitRecord {
             log_bytes,

@@ -44,6 +44,7 @@ fn committed_sessions_are_read_once_and_an_uncommitted_tail_never() {
     assert_eq!((outcome.stored, outcome.purchases), (2, 2));
     let (got, offset) = read_all(&dir, 0);
     assert_eq!(got, vec![s("a"), s("b")]);
+    let c_hash = store.ids().hash("c");
     drop(store);
     // a crash in the middle of a commit: whole lines, and a torn one, past the commit point
     let line = serde_json::to_string(&s("c")).expect("json");
@@ -51,7 +52,7 @@ fn committed_sessions_are_read_once_and_an_uncommitted_tail_never() {
         &sessions_file(&dir),
         format!("{line}\n{{\"session_id\":\"d\",\"pu").as_bytes(),
     );
-    append_bytes(&index_file(&dir), &id_hash("c").to_le_bytes());
+    append_bytes(&index_file(&dir), &c_hash.to_le_bytes());
     assert_eq!(read_all(&dir, offset), (vec![], offset), "not committed");
     let mut store = SessionStore::open(&dir).expect("reopens");
     assert_eq!(
@@ -172,4 +173,46 @@ fn a_store_from_before_commit_records_is_read_whole_and_indexed_at_open() {
         .collect();
     assert_eq!(ids, ["old-1", "old-2", "new"]);
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn ids_are_hashed_with_the_stores_own_secret_key_kept_across_reopens() {
+    let (a, b) = (temp_store("key-a"), temp_store("key-b"));
+    let mut store_a = SessionStore::open(&a).expect("opens");
+    let store_b = SessionStore::open(&b).expect("opens");
+    // another store, another key: what collides in one says nothing of the other
+    let ids: Vec<String> = (0..16).map(|i| format!("user-{i}")).collect();
+    let hashes =
+        |store: &SessionStore| -> Vec<u64> { ids.iter().map(|i| store.ids().hash(i)).collect() };
+    assert_ne!(hashes(&store_a), hashes(&store_b));
+    assert_ne!(
+        store_a.ids().hash("user-0"),
+        crate::recsys::sessions::id_hash("user-0"),
+        "not the public hash"
+    );
+    assert_eq!(
+        store_a.append(&[s("a"), s("b")]).expect("appends").stored,
+        2
+    );
+    let before = hashes(&store_a);
+    drop(store_a);
+    let store_a = SessionStore::open(&a).expect("reopens");
+    assert_eq!(hashes(&store_a), before, "the key is kept");
+    assert!(store_a.ids().contains("a") && !store_a.ids().contains("c"));
+    drop(store_a);
+    // a store from before the key: one is drawn and the index rebuilt with it
+    std::fs::remove_file(a.join("id_key")).expect("removed");
+    let mut store_a = SessionStore::open(&a).expect("reopens without a key");
+    assert_ne!(hashes(&store_a), before, "a new key");
+    assert!(store_a.ids().contains("a") && store_a.ids().contains("b"));
+    assert_eq!(store_a.append(&[s("a")]).expect("appends").duplicates, 1);
+    drop(store_a);
+    // a damaged key is refused, naming the file
+    std::fs::write(a.join("id_key"), "not a key").expect("written");
+    let refused = SessionStore::open(&a).expect_err("a damaged key");
+    assert!(refused.to_string().contains("id_key"), "{refused}");
+    drop(store_b);
+    for dir in [a, b] {
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

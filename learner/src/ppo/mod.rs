@@ -19,6 +19,8 @@
 //! checkpoint carries besides the weights) in `state_codec`'s layout.
 
 mod batch;
+#[cfg(test)]
+mod bounds_tests;
 mod credits;
 mod fused_update;
 mod pretrain;
@@ -34,7 +36,7 @@ mod update;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use jsae_nn::{BurnDevice, DeviceKind, RecordError};
-use jsae_proto::{EpisodeStat, PolicySnapshot, RolloutFragment};
+use jsae_proto::{EpisodeStat, FragmentBounds, PolicySnapshot, RolloutFragment};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -49,7 +51,7 @@ use fused_update::FusedState;
 pub use pretrain::{LoggedPurchases, PretrainReport};
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use state_codec::StateError;
-pub use update::clipped_surrogate_loss;
+pub use update::{LOG_RATIO_MAX, clipped_surrogate_loss};
 
 /// Adam's epsilon, on both update paths.
 const ADAM_EPSILON: f32 = 1e-5;
@@ -88,6 +90,8 @@ pub struct Learner {
     episodes: Vec<EpisodeStat>,
     reward_scaler: Option<RewardScaler>,
     updates: u64,
+    /// Updates whose weights came out not finite, undone (the weights before them kept).
+    updates_refused: u64,
     /// The exploration bonus's visit counts over all actors (`exploration.bonus`; None: off).
     visits: Option<VisitBonus>,
 }
@@ -131,6 +135,7 @@ impl Learner {
             episodes: Vec::new(),
             reward_scaler,
             updates: 0,
+            updates_refused: 0,
             visits: None,
         }
     }
@@ -275,23 +280,33 @@ impl Learner {
         self.credits.trust(actor_id, incarnation, steps);
     }
 
-    /// Validates a fragment (shapes, finite values, rewards within `ppo.max_abs_reward`, a
-    /// step claim that does not go back) and buffers it, crediting its env steps and adding
-    /// the exploration bonus of its visits (counted over all actors); runs an update when
-    /// the batch is complete.
+    /// What a fragment may carry: this policy's input width and action space, rewards within
+    /// `ppo.max_abs_reward`, log-probabilities the head can give.
+    pub fn fragment_bounds(&self) -> FragmentBounds {
+        let head = self.policy.head();
+        FragmentBounds {
+            x_dim: self.policy.input_dim(),
+            actions: head.action_space(),
+            max_abs_reward: self.config.max_abs_reward,
+            logp: head.behaviour_logp_range(),
+            // the environment is the service's to know (`LearnerService`)
+            max_episode_steps: u32::MAX,
+        }
+    }
+
+    /// Validates a fragment ([`Self::fragment_bounds`]; a step claim that does not go back)
+    /// and buffers it, crediting its env steps and adding the exploration bonus of its
+    /// visits (counted over all actors); runs an update when the batch is complete. An
+    /// update that leaves weights not finite is undone (the weights before it are kept, and
+    /// published again under the next version).
     pub fn ingest(&mut self, mut fragment: RolloutFragment) -> Result<Ingested, LearnerError> {
-        fragment.validate(
-            self.policy.input_dim(),
-            &self.policy.head().action_space(),
-            self.config.max_abs_reward,
-        )?;
+        fragment.validate(&self.fragment_bounds())?;
         self.credits.credit(
             fragment.actor_id,
             fragment.actor_incarnation,
             fragment.actor_env_steps,
             fragment.len() as u64,
         )?;
-        self.episodes.extend_from_slice(&fragment.episodes);
         if let Some(visits) = self.visits.as_mut() {
             visits.apply(&mut fragment);
         }
@@ -311,6 +326,8 @@ impl Learner {
             self.pending_steps = 0;
             self.batch_lag = LagStats::default();
         }
+        // the episodes of kept fragments only: what is held waits for the batch, bounded by it
+        self.episodes.extend_from_slice(&fragment.episodes);
         for stats in [&mut self.batch_lag, &mut self.run_lag] {
             stats.sum += lag;
             stats.count += 1;
@@ -378,6 +395,8 @@ impl Learner {
         if let Some(cap) = std_cap {
             self.policy.hold_log_std(cap);
         }
+        // what the update starts from, kept should it end in weights that are not finite
+        let before = (self.policy.clone(), self.fused.adam_moments());
         let mut metrics = UpdateMetrics::default();
         let mut epochs = 0;
         for part in split_batch(fragments, self.config.max_update_steps) {
@@ -398,6 +417,23 @@ impl Learner {
         if let Some(cap) = std_cap {
             // the policy gradient may have pushed the std past the cap in this update
             self.policy.hold_log_std(cap);
+        }
+        let non_finite = jsae_nn::non_finite_values(self.policy.net());
+        if non_finite > 0 {
+            let (policy, moments) = before;
+            self.policy = policy;
+            self.fused.set_adam_moments(moments);
+            self.optim = Adam(AdamConfig::new().with_epsilon(ADAM_EPSILON).init());
+            self.updates_refused += 1;
+            tracing::warn!(
+                "update {}: {non_finite} weights were NaN or infinite after it (policy loss \
+                 {:.4e}, grad norm {:.4e}): the last finite weights are kept and published again \
+                 under the next version, and this batch is lost ({} updates refused so far)",
+                self.updates + 1,
+                metrics.policy_loss,
+                metrics.grad_norm,
+                self.updates_refused
+            );
         }
         metrics.log_std_mean = match self.policy.head() {
             PolicyHead::Gaussian { .. } => {

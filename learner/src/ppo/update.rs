@@ -132,10 +132,17 @@ pub(crate) fn next_purchase_nll(
     Some((logp * mask).sum().neg().div_scalar(targets.len() as f32))
 }
 
+/// The largest log-ratio the surrogate takes as it is: beyond it the ratio is held at
+/// `exp(20)` (about 4.9e8) and its gradient is 0, so a behaviour log-probability far below
+/// the policy's own (which PPO's clip leaves unbounded where the advantage is negative) can
+/// neither overflow the ratio to infinity nor dominate the update. Real batches stay far
+/// below it (their ratios are within a few tenths of 1).
+pub const LOG_RATIO_MAX: f32 = 20.0;
+
 /// PPO's clipped surrogate: `mean(max(-A r, -A clip(r, 1-c, 1+c)))` with
-/// `r = exp(log_ratio)`, all `[batch]`.
+/// `r = exp(min(log_ratio, LOG_RATIO_MAX))`, all `[batch]`.
 pub fn clipped_surrogate_loss(log_ratio: Tensor<1>, adv: Tensor<1>, clip: f32) -> Tensor<1> {
-    let ratio = log_ratio.exp();
+    let ratio = log_ratio.clamp_max(LOG_RATIO_MAX).exp();
     let unclipped = ratio.clone() * adv.clone().neg();
     let clipped = ratio.clamp(1.0 - clip, 1.0 + clip) * adv.neg();
     unclipped.max_pair(clipped).mean()

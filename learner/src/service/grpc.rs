@@ -1,10 +1,10 @@
 //! The `jsae.v1.Learner` handlers: `PushFragments` checks each fragment (size, dimensions,
-//! finite values, rewards within `ppo.max_abs_reward`, a policy version this learner has
-//! published, an embedding version its embedder has published) and queues it for the
-//! training thread; `WatchPolicy` streams snapshots, the evaluation request (to the asked
-//! actor's stream only), each actor's share of a shared batch (to its own stream) and the
-//! end of the run, and tells the training thread which actors' streams are open;
-//! `ReportEval` takes the asked actor's evaluation.
+//! at least one step, every value within what an actor can send: `FragmentBounds`), a
+//! policy version this learner has published, an embedding version its embedder has
+//! published) and queues it for the training thread; `WatchPolicy` streams snapshots, the
+//! evaluation request (to the asked actor's stream only), each actor's share of a shared
+//! batch (to its own stream) and the end of the run, and tells the training thread which
+//! actors' streams are open; `ReportEval` takes the asked actor's evaluation.
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
@@ -13,7 +13,7 @@ use std::time::Duration;
 
 use jsae_proto::wire::{self, pb};
 use jsae_proto::{
-    ActionSpace, EmbeddingSnapshot, EvalReport, PolicySnapshot, RolloutFragment, RpcError, net,
+    EmbeddingSnapshot, EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError, net,
 };
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
@@ -76,10 +76,8 @@ pub(super) struct PolicyState {
 /// The `jsae.v1.Learner` implementation.
 #[derive(Debug, Clone)]
 pub struct LearnerService {
-    pub(super) x_dim: usize,
-    pub(super) actions: ActionSpace,
-    /// `ppo.max_abs_reward`.
-    pub(super) max_abs_reward: f32,
+    /// What a fragment may carry (`Learner::fragment_bounds`).
+    pub(super) bounds: FragmentBounds,
     pub(super) version: Arc<AtomicU64>,
     /// The highest embedding version the embedder has published to this learner (None: a
     /// run without an embedder, whose fragments carry version 0).
@@ -121,7 +119,7 @@ impl LearnerService {
         let bad = |e: String| RpcError::InvalidArgument(format!("fragment {index}: {e}"));
         let fragment = RolloutFragment::try_from(msg).map_err(|e| bad(e.to_string()))?;
         fragment
-            .validate(self.x_dim, &self.actions, self.max_abs_reward)
+            .validate(&self.bounds)
             .map_err(|e| bad(e.to_string()))?;
         let current = self.version.load(Ordering::Acquire);
         if fragment.policy_version > current {
@@ -138,6 +136,37 @@ impl LearnerService {
             )));
         }
         Ok(fragment)
+    }
+
+    /// Why an evaluation report answering `asked` cannot be true: episode counts, lengths
+    /// or returns the environment cannot give ([`EvalReport::check`]), a policy version this
+    /// learner has not published, an embedding version other than the one asked for (or,
+    /// without one named, one the embedder has not published).
+    fn implausible(&self, report: &EvalReport, asked: &pb::EvalRequest) -> Result<(), String> {
+        report
+            .check(asked.episodes, &self.bounds)
+            .map_err(|e| e.to_string())?;
+        let current = self.version.load(Ordering::Acquire);
+        if report.policy_version > current {
+            return Err(format!(
+                "policy version {} (this learner is at {current})",
+                report.policy_version
+            ));
+        }
+        let published = self.embedding.as_ref().map_or(0, |p| *p.borrow());
+        let embedding = report.embedding_version;
+        let known = match asked.embedding_version {
+            0 => embedding <= published,
+            wanted => embedding == wanted,
+        };
+        if !known {
+            return Err(format!(
+                "embedding version {embedding} (asked for {}, the embedder has published up \
+                 to {published})",
+                asked.embedding_version
+            ));
+        }
+        Ok(())
     }
 
     /// Whether the embedder has published `version` (0, no embedding, always counts), waiting
@@ -279,6 +308,12 @@ impl pb::learner_server::Learner for LearnerService {
                 "no evaluation request {id} is open"
             ))),
         };
+        let refused = refused.or_else(|| {
+            let asked = open?;
+            self.implausible(&report, &asked)
+                .err()
+                .map(|e| RpcError::InvalidArgument(format!("eval report: {e}")))
+        });
         if let Some(e) = refused {
             tracing::warn!("learner: an evaluation report of actor {actor} refused: {e}");
             return Err(e.into());

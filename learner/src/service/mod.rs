@@ -33,7 +33,7 @@ use jsae_proto::run_dir::{RunDir, Weights};
 use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
-use jsae_proto::{client, net};
+use jsae_proto::{FragmentBounds, client, net};
 use jsae_telemetry::{LearnerMetrics, MetricsFlag, MetricsRegistry};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
@@ -143,7 +143,9 @@ pub async fn serve(
     if !resumed {
         std::fs::write(out.config_toml(), config.to_toml())?;
     }
-    let metrics = RunMetrics::open(&out, &UPDATE_COLUMNS, resumed)?;
+    // rows of updates past the checkpoint's (a forged row, or a row of an update whose
+    // checkpoint was lost) are cut, so the rows this run writes are not taken for repeats
+    let metrics = RunMetrics::open(&out, &UPDATE_COLUMNS, resumed.then(|| learner.updates()))?;
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -151,9 +153,10 @@ pub async fn serve(
     // the highest embedding version published (fragments of a higher one are refused)
     let (published_tx, published_rx) = watch::channel(0u64);
     let service = LearnerService {
-        x_dim: learner.policy().input_dim(),
-        actions: learner.head().action_space(),
-        max_abs_reward: config.ppo.max_abs_reward,
+        bounds: FragmentBounds {
+            max_episode_steps: config.env.max_episode_steps(&config.environment),
+            ..learner.fragment_bounds()
+        },
         version: version.clone(),
         embedding: options.embedder.is_some().then_some(published_rx),
         queue: queue_tx.clone(),
@@ -313,6 +316,11 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
             c.env_steps = args.env_steps.unwrap_or(c.env_steps);
             c.out = args.out.clone();
             c.validate().map_err(|e| e.to_string())?;
+            // a restart without --resume resumes a good checkpoint; damaged ones are refused
+            // rather than overwritten with a run from version 0
+            RunDir::new(&c.out)
+                .checkpoints()
+                .refuse_unreadable(Weights::Policy)?;
             let security = args.security.load()?;
             let embedder = args.embedder.for_run(&c, &security)?;
             let logged = logs(&c)?.map(Arc::new);

@@ -106,6 +106,17 @@ impl EmbeddingConfig {
         if self.state_dim == 0 || self.action_dim == 0 {
             return Err("embedding.state_dim and embedding.action_dim must be positive".into());
         }
+        use super::ppo::MAX_WIDTH;
+        for (key, v) in [
+            ("state_dim", self.state_dim),
+            ("action_dim", self.action_dim),
+            ("transition_hidden", self.transition_hidden),
+            ("decoder_hidden", self.decoder_hidden),
+        ] {
+            if v > MAX_WIDTH {
+                return Err(format!("embedding.{key} is {v}, at most {MAX_WIDTH}"));
+            }
+        }
         let positive = |v: f64| v > 0.0 && v.is_finite();
         if !positive(self.lr) || !positive(self.update_lr) {
             return Err("embedding.lr and embedding.update_lr must be positive".into());

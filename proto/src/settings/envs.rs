@@ -321,6 +321,17 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
 }
 
 impl EnvName {
+    /// The most steps an episode of this environment lasts under `config` (its time limit):
+    /// what an evaluation report's episode lengths are checked against.
+    pub fn max_episode_steps(self, config: &EnvConfig) -> u32 {
+        match self {
+            Self::Gridworld | Self::GridworldDiscrete => config.gridworld.max_steps,
+            Self::Slotmachine => config.slotmachine.horizon,
+            Self::HalfCheetah | Self::Ant => config.mujoco.max_steps,
+            Self::Recommender => config.recommender.episode_len,
+        }
+    }
+
     /// Each discrete action's true displacement, where the environment has one (the
     /// gridworlds): what an action embedding's structure is measured against.
     pub fn action_motions(self, config: &EnvConfig) -> Option<Vec<[f64; 2]>> {

@@ -189,6 +189,19 @@ impl Default for PpoConfig {
     }
 }
 
+/// Most hidden layers a network may have (settings beyond are refused before anything is
+/// allocated).
+pub const MAX_LAYERS: usize = 8;
+/// Widest hidden layer (`ppo.hidden`, `embedding.transition_hidden`, `decoder_hidden`).
+pub const MAX_WIDTH: usize = 8_192;
+/// Largest `ppo.batch_steps` and `ppo.minibatch_size` (the learner's limit on announced
+/// rollouts, 2^22).
+pub const MAX_BATCH_STEPS: usize = 1 << 22;
+/// Most epochs over one batch.
+pub const MAX_EPOCHS: usize = 1_000;
+/// Most buckets of the crossed pair feature (`ppo.pair_buckets`; 131,072 in use).
+pub const MAX_PAIR_BUCKETS: usize = 1 << 22;
+
 /// [`PpoConfig::max_abs_reward`]'s default.
 pub const DEFAULT_MAX_ABS_REWARD: f32 = 1e6;
 
@@ -351,6 +364,23 @@ impl PpoConfig {
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }
+        if self.hidden.len() > MAX_LAYERS || self.hidden.iter().any(|&w| w > MAX_WIDTH) {
+            return Err(format!(
+                "ppo.hidden: at most {MAX_LAYERS} layers of at most {MAX_WIDTH} units, got \
+                 {:?}",
+                self.hidden
+            ));
+        }
+        for (key, v, most) in [
+            ("batch_steps", self.batch_steps, MAX_BATCH_STEPS),
+            ("minibatch_size", self.minibatch_size, MAX_BATCH_STEPS),
+            ("epochs", self.epochs, MAX_EPOCHS),
+            ("pair_buckets", self.pair_buckets, MAX_PAIR_BUCKETS),
+        ] {
+            if v > most {
+                return Err(format!("ppo.{key} is {v}, at most {most}"));
+            }
+        }
         if self.max_abs_reward.is_nan() || self.max_abs_reward <= 0.0 {
             return Err(format!(
                 "ppo.max_abs_reward must be positive, got {}",
@@ -485,6 +515,30 @@ mod tests {
             c.ppo.max_abs_reward = bad;
             let reason = c.validate().expect_err("not positive").to_string();
             assert!(reason.contains("ppo.max_abs_reward"), "{reason}");
+        }
+    }
+
+    #[test]
+    fn absurd_sizes_are_refused_before_anything_is_allocated() {
+        let c = TrainConfig::defaults(EnvName::Gridworld, Algo::Jsae);
+        c.validate().expect("the defaults pass");
+        type Set = fn(&mut TrainConfig);
+        let cases: [(&str, Set); 5] = [
+            ("ppo.hidden", |c| c.ppo.hidden = vec![100_000_000, 64]),
+            ("ppo.hidden", |c| c.ppo.hidden = vec![64; MAX_LAYERS + 1]),
+            ("ppo.batch_steps", |c| {
+                c.ppo.batch_steps = MAX_BATCH_STEPS + 1
+            }),
+            ("ppo.pair_buckets", |c| c.ppo.pair_buckets = usize::MAX),
+            ("embedding.decoder_hidden", |c| {
+                c.embedding.decoder_hidden = 1 << 30
+            }),
+        ];
+        for (key, set) in cases {
+            let mut bad = c.clone();
+            set(&mut bad);
+            let reason = bad.validate().expect_err("too large").to_string();
+            assert!(reason.contains(key), "{key}: {reason}");
         }
     }
 

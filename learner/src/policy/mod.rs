@@ -24,6 +24,9 @@ use jsae_nn::ObsNorm;
 pub(crate) const LOG_STD_MIN: f32 = -5.0;
 pub(crate) const LOG_STD_MAX: f32 = 2.0;
 pub(crate) const HALF_LOG_2PI: f32 = 0.918_938_5;
+/// A bound on `|z|` of a standard normal draw by `rand_distr`'s ziggurat from 53 random bits
+/// (its tail gives at most about 13.7).
+const MAX_NORMAL_DRAW: f32 = 20.0;
 
 /// The distribution the policy outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -50,6 +53,30 @@ impl PolicyHead {
                 high: vec![f32::INFINITY; dim],
             },
             Self::Categorical { n } => ActionSpace::Discrete { n },
+        }
+    }
+
+    /// The behaviour log-probabilities an actor acting with this head can report
+    /// ([`Policy::act`]), `(lowest, highest)`, which the learner accepts at the wire
+    /// ([`jsae_proto::FragmentBounds`]). Gaussian, per component: the density's peak at the
+    /// smallest std, down to a draw [`MAX_NORMAL_DRAW`] stds out at the largest std.
+    /// Categorical: an action is drawn only where its weight `exp(l - max)` is positive in
+    /// `f32` (at least `2^-149`), so its log-probability is at least `ln 2^-149 - ln n`; it
+    /// is never above 0. Each side has a margin of 1 (rounding) per component.
+    pub fn behaviour_logp_range(self) -> (f32, f32) {
+        match self {
+            Self::Gaussian { dim } => {
+                let dim = dim as f32;
+                let lowest = 0.5 * MAX_NORMAL_DRAW * MAX_NORMAL_DRAW + LOG_STD_MAX + HALF_LOG_2PI;
+                (
+                    -(lowest + 1.0) * dim,
+                    (-LOG_STD_MIN - HALF_LOG_2PI + 1.0) * dim,
+                )
+            }
+            Self::Categorical { n } => {
+                let smallest_weight = 149.0 * std::f32::consts::LN_2;
+                (-(smallest_weight + (n.max(1) as f32).ln() + 1.0), 0.0)
+            }
         }
     }
 
@@ -492,16 +519,22 @@ impl Policy {
                             )
                             .0
                     } else {
+                        // rounding may leave `u` above 0 after the last action: the draw
+                        // then takes the last action of positive weight (never one whose
+                        // probability is 0 in f32)
                         let mut u = rng.random::<f32>() * sum;
-                        let mut pick = n - 1;
+                        let mut pick = None;
                         for (i, l) in logits.iter().enumerate() {
-                            u -= (l - max).exp();
-                            if u <= 0.0 {
-                                pick = i;
+                            let weight = (l - max).exp();
+                            if weight > 0.0 {
+                                pick = Some(i);
+                            }
+                            u -= weight;
+                            if u <= 0.0 && weight > 0.0 {
                                 break;
                             }
                         }
-                        pick
+                        pick.unwrap_or(0)
                     };
                     chosen.push(a as u32);
                     logp.push(logits[a] - log_z);
@@ -537,54 +570,4 @@ pub fn policy_shape(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use jsae_nn::{BurnDevice, DeviceKind};
-    use rand::SeedableRng;
-
-    #[test]
-    fn observation_statistics_travel_with_the_weights() {
-        let device = DeviceKind::Flex.device();
-        let config = PpoConfig {
-            normalize_obs: true,
-            ..PpoConfig::default()
-        };
-        let head = PolicyHead::Gaussian { dim: 2 };
-        let mut rng = ChaCha8Rng::seed_from_u64(1);
-        let mut policy = Policy::new(&config, 3, head, &mut rng, &device);
-        let x: Vec<f32> = (0..300).map(|i| (i % 7) as f32 * 10.0 + 100.0).collect();
-        policy.update_obs_stats(&x);
-        let (mean, var, count) = policy.obs_stats().expect("normalises");
-        assert!(mean.iter().all(|&m| m > 100.0) && var.iter().all(|&v| v > 100.0));
-        assert!((count - 100.0).abs() < 1e-2);
-
-        let bytes = policy.to_bytes().expect("serialises");
-        let mut fresh = Policy::new(&config, 3, head, &mut rng, &device);
-        assert_ne!(fresh.obs_stats().map(|s| s.0), Some(mean.clone()));
-        fresh.load_bytes(&bytes).expect("loads");
-        assert_eq!(fresh.obs_stats().map(|s| (s.0, s.1)), Some((mean, var)));
-
-        let probe = vec![130.0, 110.0, 150.0];
-        let act = |p: &Policy| {
-            let (mut a, mut lp) = (ActionBatch::empty(&head.action_space()), Vec::new());
-            p.act(
-                &probe,
-                true,
-                &mut ChaCha8Rng::seed_from_u64(0),
-                &mut a,
-                &mut lp,
-            );
-            a
-        };
-        let loaded = {
-            let mut p = Policy::new(&config, 3, head, &mut rng, &device);
-            p.load_bytes(&bytes).expect("loads");
-            p
-        };
-        assert_eq!(
-            act(&policy),
-            act(&loaded),
-            "same weights and statistics, same action"
-        );
-    }
-}
+mod tests;
