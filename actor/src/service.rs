@@ -344,6 +344,8 @@ pub async fn run(
     let embedder_lost = Arc::new(AtomicU64::new(0));
     let share = Arc::new(AtomicU64::new(0));
     let mut tasks = tokio::task::JoinSet::new();
+    // a follower that gave up (its credentials refused again and again) ends the actor
+    let (gave_up_tx, mut gave_up_rx) = mpsc::channel::<client::GaveUp>(2);
     let security = options.security.clone();
     let learner_channel = security.channel(&options.learner)?;
 
@@ -355,12 +357,16 @@ pub async fn run(
         let channel = security.channel(&url)?;
         let watching = security.clone();
         let lost = embedder_lost.clone();
+        let gave_up = gave_up_tx.clone();
         tasks.spawn(async move {
-            client::watch_embedding_counting_losses(&watching, &url, &lost, |s| {
+            let followed = client::watch_embedding_counting_losses(&watching, &url, &lost, |s| {
                 embedding_tx.send_replace(Some(Arc::new(s)));
                 async { true }
             })
             .await;
+            if let Err(e) = followed {
+                let _ = gave_up.send(e).await;
+            }
         });
         tasks.spawn(push_forever("embedder", transitions_rx, move |stream| {
             let mut c = pb::embedder_client::EmbedderClient::new(channel.clone())
@@ -383,8 +389,9 @@ pub async fn run(
             envs: u32::try_from(config.envs_per_actor).unwrap_or(0),
         };
         let told = share.clone();
+        let gave_up = gave_up_tx.clone();
         tasks.spawn(async move {
-            client::watch_policy(&watching, &url, hello, |event| {
+            let followed = client::watch_policy(&watching, &url, hello, |event| {
                 let go_on = match event {
                     PolicyEvent::Snapshot(s) => {
                         policy_tx.send_replace(Some(Arc::new(s)));
@@ -413,6 +420,9 @@ pub async fn run(
                 async move { go_on }
             })
             .await;
+            if let Err(e) = followed {
+                let _ = gave_up.send(e).await;
+            }
         });
         let channel = learner_channel.clone();
         tasks.spawn(push_forever("learner", fragments_rx, move |stream| {
@@ -466,6 +476,11 @@ pub async fn run(
     tokio::pin!(stop);
     let exit = tokio::select! {
         r = &mut stepping => r?,
+        Some(gave_up) = gave_up_rx.recv() => {
+            stop_flag.store(true, Ordering::Relaxed);
+            tasks.abort_all();
+            anyhow::bail!("{gave_up}");
+        }
         () = &mut stop => {
             stop_flag.store(true, Ordering::Relaxed);
             // the thread may be waiting on a full queue: give it a moment, then leave

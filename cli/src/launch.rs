@@ -166,6 +166,24 @@ fn stop_on_signal() -> Result<Arc<AtomicBool>, TrainError> {
         .map_err(|e| TrainError::Service(format!("cannot catch SIGTERM and SIGINT: {e}")))
 }
 
+/// A service that exited before the run's end, with the reason its log ends on (the last
+/// ERROR line, or the line its `main` printed), so that `jsae train` says why, not only
+/// where to look.
+fn exited(run: &RunDir, name: &str, status: std::process::ExitStatus) -> TrainError {
+    let log = run.log(name);
+    let text = std::fs::read_to_string(&log).unwrap_or_default();
+    let reason = text
+        .lines()
+        .rev()
+        .find(|l| l.contains("ERROR") || l.starts_with("jsae-") || l.starts_with("jsae "))
+        .map(|l| format!(": {}", l.trim()))
+        .unwrap_or_default();
+    TrainError::Service(format!(
+        "the {name} exited ({status}){reason}; see {}",
+        log.display()
+    ))
+}
+
 /// The last data row of `metrics.csv`: (env steps, return, success rate).
 fn last_metrics(path: &Path) -> Option<(u64, Option<f64>, Option<f64>)> {
     let table = MetricsTable::read(path).ok()?;
@@ -317,10 +335,25 @@ pub fn train_processes(
         if let Some(e) = embedder.as_mut()
             && let Ok(Some(status)) = e.child.try_wait()
         {
-            return Err(TrainError::Service(format!(
-                "the embedder exited ({status}); see {}",
-                run.log("embedder").display()
-            )));
+            return Err(exited(&run, "embedder", status));
+        }
+        // every actor failed: nothing will step again (an actor that dies beside others is
+        // the run's to survive; one that exits 0 was told the run is over)
+        let statuses: Vec<_> = actors
+            .iter_mut()
+            .map(|a| a.child.try_wait().ok().flatten())
+            .collect();
+        if statuses.iter().all(|s| s.is_some_and(|s| !s.success()))
+            && let Some(Some(status)) = statuses.first()
+        {
+            for a in &mut actors {
+                a.terminate(Duration::from_secs(1));
+            }
+            learner.terminate(Duration::from_secs(30));
+            if let Some(e) = embedder.as_mut() {
+                e.terminate(Duration::from_secs(30));
+            }
+            return Err(exited(&run, "actor-0", *status));
         }
         match last_metrics(&metrics) {
             Some((steps, ret, success)) => progress.position(steps, ret, success),
@@ -335,10 +368,7 @@ pub fn train_processes(
         std::thread::sleep(Duration::from_millis(500));
     };
     if !status.success() {
-        return Err(TrainError::Service(format!(
-            "the learner exited ({status}); see {}",
-            run.log("learner").display()
-        )));
+        return Err(exited(&run, "learner", status));
     }
     for a in &mut actors {
         a.terminate(Duration::from_secs(10));

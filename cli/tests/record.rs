@@ -9,7 +9,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{assert_tensorboard_holds_the_metrics, repo_root, venv_python};
+use common::{assert_tensorboard_holds_the_metrics, repo_root, stderr_within, venv_python};
 use serde_json::Value;
 
 fn jsae(args: &[&str]) -> std::process::Output {
@@ -215,24 +215,41 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
         "fresh {fresh}, recorded {recorded}"
     );
 
-    // A recording of another environment is refused before training.
-    let wrong = jsae(&[
-        "train",
-        "--env",
-        "gridworld",
-        "--algo",
-        "jsae",
-        "--env-steps",
-        "30000",
-        "--one-process",
-        "--quiet",
-        "--pretrain-from",
-        file_arg,
-        "--out",
-        dir.join("wrong").to_str().unwrap_or_default(),
-    ]);
-    assert!(!wrong.status.success());
-    assert!(String::from_utf8_lossy(&wrong.stderr).contains("not of this run's spaces"));
+    // A recording of another environment is refused before training, in one process and as
+    // separate processes: there the embedder stops with the cause and `jsae train` says it (it
+    // used to wait for ever while the actor played at random).
+    let wrong = |out: &str, one_process: bool| {
+        let out = dir.join(out);
+        let mut args = vec![
+            "train",
+            "--env",
+            "gridworld",
+            "--algo",
+            "jsae",
+            "--env-steps",
+            "30000",
+            "--quiet",
+            "--pretrain-from",
+            file_arg,
+            "--out",
+            out.to_str().unwrap_or_default(),
+        ];
+        if one_process {
+            args.push("--one-process");
+        }
+        let mut command = Command::new(env!("CARGO_BIN_EXE_jsae"));
+        command.args(args);
+        let done = stderr_within(&mut command, 120, "jsae train still waits");
+        assert!(!done.status.success());
+        String::from_utf8_lossy(&done.stderr).into_owned()
+    };
+    let err = wrong("wrong", true);
+    assert!(err.contains("not of this run's spaces"), "{err}");
+    let err = wrong("wrong-separate", false);
+    assert!(
+        err.contains("the embedder exited") && err.contains("not of this run's spaces"),
+        "{err}"
+    );
     let ppo = jsae(&["train", "--algo", "ppo", "--pretrain-from", file_arg]);
     assert_eq!(ppo.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&dir);

@@ -276,6 +276,28 @@ fn a_python_client_needs_the_token_on_every_embedder_and_learner_rpc_but_health(
     }
     assert_eq!(seen["embedder/health"], "SERVING");
     assert_eq!(seen["learner/health"], "SERVING");
+
+    // an actor without the token gives up with the reason, instead of retrying for ever
+    let learner_url = format!("http://127.0.0.1:{learner_port}");
+    let mut actor = Command::new(env!("CARGO_BIN_EXE_jsae"));
+    actor
+        .current_dir(&dir)
+        .args([
+            "actor",
+            "--learner",
+            &learner_url,
+            "--embedder",
+            &embedder_url,
+        ])
+        .args(run)
+        .args(["--id", "0", "--envs", "4"]);
+    let out = common::stderr_within(&mut actor, 60, "an actor without the token still runs");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("refused this process's credentials") && err.contains("Unauthenticated"),
+        "{err}"
+    );
 }
 
 #[test]

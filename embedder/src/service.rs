@@ -279,13 +279,17 @@ pub async fn serve(
         accepted: Arc::new(AtomicU64::new(0)),
         held: Arc::new(AtomicBool::new(false)),
     };
+    // the training thread ends before the server only when it fails: the server then stops
+    // at once, and the failure is this process's exit (not a service that answers on and
+    // never trains)
+    let (ended_tx, ended_rx) = tokio::sync::oneshot::channel::<()>();
     let trainer = {
         let config = config.clone();
         let held = service.held.clone();
         std::thread::Builder::new()
             .name("embedder-train".into())
             .spawn(move || {
-                training_loop(
+                let result = training_loop(
                     &config,
                     &states,
                     &actions,
@@ -293,7 +297,9 @@ pub async fn serve(
                     &held,
                     &publish_tx,
                     &options,
-                )
+                );
+                let _ = ended_tx.send(());
+                result
             })?
     };
     let server = pb::embedder_server::EmbedderServer::new(service)
@@ -305,8 +311,12 @@ pub async fn serve(
         &security,
         Some(RECEIVE_WINDOW),
         async move {
-            shutdown.await;
-            tracing::info!("embedder: shutting down");
+            tokio::select! {
+                () = shutdown => tracing::info!("embedder: shutting down"),
+                _ = ended_rx => tracing::error!(
+                    "embedder: the training thread stopped; shutting down (its error follows)"
+                ),
+            }
             let _ = stop_tx.send(true);
         },
     )

@@ -1,6 +1,7 @@
 //! Following the services' snapshot streams: connect, reassemble chunks, hand each complete
 //! snapshot (or event) to a sink, and on any disconnection reconnect with backoff and resume,
-//! for as long as the sink wants more.
+//! for as long as the sink wants more. Refusals that retrying cannot fix (the token, a TLS
+//! certificate) end the following after [`MAX_CREDENTIAL_REFUSALS`] in a row, with the reason.
 
 use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -24,14 +25,86 @@ pub enum PolicyEvent {
     Share(u32),
 }
 
+/// Refusals for the credentials in a row (UNAUTHENTICATED, PERMISSION_DENIED, a TLS
+/// certificate refused by either side) after which a follower gives up: about 3 s of
+/// backoff, enough for a service that is still starting, while a wrong token or certificate
+/// never gets better.
+pub const MAX_CREDENTIAL_REFUSALS: u32 = 5;
+
+/// Why a follower gave up: the last refusal, for the process to exit with.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{service} {url} refused this process's credentials {count} times in a row: {reason}")]
+pub struct GaveUp {
+    /// The service followed.
+    pub service: &'static str,
+    /// Its URL.
+    pub url: String,
+    /// Refusals in a row.
+    pub count: u32,
+    /// The last one's reason.
+    pub reason: String,
+}
+
+/// Whether a failed call was refused for this process's credentials (the token, or a TLS
+/// certificate either side refuses): retrying with the same ones cannot succeed.
+pub fn refused_credentials(status: &tonic::Status) -> bool {
+    use tonic::Code;
+    matches!(
+        status.code(),
+        Code::Unauthenticated | Code::PermissionDenied
+    ) || crate::net::status_reason(status)
+        .to_lowercase()
+        .contains("certificate")
+}
+
+/// Counts refusals for the credentials in a row.
+#[derive(Debug)]
+struct Refusals {
+    service: &'static str,
+    url: String,
+    count: u32,
+}
+
+impl Refusals {
+    fn new(service: &'static str, url: &str) -> Self {
+        Self {
+            service,
+            url: url.to_owned(),
+            count: 0,
+        }
+    }
+
+    /// A failed call, logged; the reason to give up once the credentials were refused
+    /// [`MAX_CREDENTIAL_REFUSALS`] times in a row.
+    fn failed(&mut self, status: &tonic::Status) -> Result<(), GaveUp> {
+        let reason = crate::net::status_reason(status);
+        tracing::warn!("{} {}: {reason}", self.service, self.url);
+        if !refused_credentials(status) {
+            self.count = 0;
+            return Ok(());
+        }
+        self.count += 1;
+        if self.count < MAX_CREDENTIAL_REFUSALS {
+            return Ok(());
+        }
+        Err(GaveUp {
+            service: self.service,
+            url: self.url.clone(),
+            count: self.count,
+            reason,
+        })
+    }
+}
+
 /// Follows the embedder at `url`: every complete snapshot goes to `sink`; returns when `sink`
-/// answers `false` (or `url` is not a valid URL).
-pub async fn watch_embedding<F, Fut>(security: &Security, url: &str, sink: F)
+/// answers `false` (or `url` is not a valid URL), or gives up when the embedder keeps
+/// refusing this process's credentials.
+pub async fn watch_embedding<F, Fut>(security: &Security, url: &str, sink: F) -> Result<(), GaveUp>
 where
     F: FnMut(EmbeddingSnapshot) -> Fut,
     Fut: Future<Output = bool>,
 {
-    watch_embedding_counting_losses(security, url, &AtomicU64::new(0), sink).await;
+    watch_embedding_counting_losses(security, url, &AtomicU64::new(0), sink).await
 }
 
 /// [`watch_embedding`], adding one to `lost` each time the stream opens again after an open
@@ -42,7 +115,8 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
     url: &str,
     lost: &AtomicU64,
     mut sink: F,
-) where
+) -> Result<(), GaveUp>
+where
     F: FnMut(EmbeddingSnapshot) -> Fut,
     Fut: Future<Output = bool>,
 {
@@ -50,11 +124,12 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
         Ok(c) => c,
         Err(e) => {
             tracing::error!("embedder URL {url}: {e}");
-            return;
+            return Ok(());
         }
     };
     let mut opened = false;
     let mut backoff = Backoff::default();
+    let mut refusals = Refusals::new("embedder", url);
     loop {
         let mut client = pb::embedder_client::EmbedderClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
@@ -65,13 +140,14 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
                 }
                 opened = true;
                 backoff.reset();
+                refusals.count = 0;
                 let mut stream = response.into_inner();
                 let mut chunks = Reassembler::default();
                 while let Ok(Some(chunk)) = stream.message().await {
                     match chunks.push(chunk) {
                         Ok(Some(done)) => {
                             if !sink(done.into_embedding()).await {
-                                return;
+                                return Ok(());
                             }
                         }
                         Ok(None) => {}
@@ -83,14 +159,15 @@ pub async fn watch_embedding_counting_losses<F, Fut>(
                 }
                 tracing::info!("embedding stream from {url} ended; reconnecting");
             }
-            Err(status) => tracing::warn!("embedder {url}: {}", crate::net::status_reason(&status)),
+            Err(status) => refusals.failed(&status)?,
         }
         tokio::time::sleep(backoff.next_delay()).await;
     }
 }
 
 /// Follows the learner at `url`: snapshots, evaluation requests and the end of the run go to
-/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL). `request` says
+/// `sink`; returns when `sink` answers `false` (or `url` is not a valid URL), or gives up
+/// when the learner keeps refusing this process's credentials. `request` says
 /// who watches, sent again on every reconnection: an actor (`evaluates`, its id and its
 /// rollout's env steps), which the learner counts in its batch and may ask for evaluation
 /// episodes while its stream is open, or the default for a follower that only reads the
@@ -100,7 +177,8 @@ pub async fn watch_policy<F, Fut>(
     url: &str,
     request: pb::WatchRequest,
     mut sink: F,
-) where
+) -> Result<(), GaveUp>
+where
     F: FnMut(PolicyEvent) -> Fut,
     Fut: Future<Output = bool>,
 {
@@ -109,16 +187,18 @@ pub async fn watch_policy<F, Fut>(
         Ok(c) => c,
         Err(e) => {
             tracing::error!("learner URL {url}: {e}");
-            return;
+            return Ok(());
         }
     };
     let mut backoff = Backoff::default();
+    let mut refusals = Refusals::new("learner", url);
     loop {
         let mut client = pb::learner_client::LearnerClient::new(channel.clone())
             .max_decoding_message_size(MAX_MESSAGE_BYTES);
         match client.watch_policy(request).await {
             Ok(response) => {
                 backoff.reset();
+                refusals.count = 0;
                 let mut stream = response.into_inner();
                 let mut chunks = Reassembler::default();
                 while let Ok(Some(msg)) = stream.message().await {
@@ -137,12 +217,12 @@ pub async fn watch_policy<F, Fut>(
                         None => continue,
                     };
                     if !sink(event).await {
-                        return;
+                        return Ok(());
                     }
                 }
                 tracing::info!("policy stream from {url} ended; reconnecting");
             }
-            Err(status) => tracing::warn!("learner {url}: {}", crate::net::status_reason(&status)),
+            Err(status) => refusals.failed(&status)?,
         }
         tokio::time::sleep(backoff.next_delay()).await;
     }

@@ -108,29 +108,36 @@ pub fn follow(
         let rec = rec.clone();
         let security = security.clone();
         tasks.spawn(async move {
-            client::watch_policy(&security, &url, pb::WatchRequest::default(), |event| {
-                if let PolicyEvent::Snapshot(s) = &event {
-                    match rec.set_policy(s) {
-                        Ok(()) => tracing::debug!("recommender: policy v{}", s.version),
-                        Err(e) => tracing::warn!("recommender: {e}"),
+            let followed =
+                client::watch_policy(&security, &url, pb::WatchRequest::default(), |event| {
+                    if let PolicyEvent::Snapshot(s) = &event {
+                        match rec.set_policy(s) {
+                            Ok(()) => tracing::debug!("recommender: policy v{}", s.version),
+                            Err(e) => tracing::warn!("recommender: {e}"),
+                        }
                     }
-                }
-                async { true }
-            })
-            .await;
+                    async { true }
+                })
+                .await;
+            if let Err(e) = followed {
+                tracing::error!("recommender: {e}; no new policy will arrive");
+            }
         });
     }
     if let Some(url) = sources.embedder.clone() {
         let rec = rec.clone();
         let security = security.clone();
         tasks.spawn(async move {
-            client::watch_embedding(&security, &url, |s| {
+            let followed = client::watch_embedding(&security, &url, |s| {
                 if let Err(e) = rec.set_embedding(&s) {
                     tracing::warn!("recommender: {e}");
                 }
                 async { true }
             })
             .await;
+            if let Err(e) = followed {
+                tracing::error!("recommender: {e}; no new embedding will arrive");
+            }
         });
     }
     tasks

@@ -191,3 +191,23 @@ pub fn processes() -> Vec<ProcessInfo> {
         })
         .collect()
 }
+
+/// The output of `command` (stdout discarded, stderr kept), which must end within `secs`
+/// seconds: past them it is killed and the test fails saying `what`.
+#[allow(dead_code, reason = "not every test crate waits on a process")]
+pub fn stderr_within(command: &mut Command, secs: u64, what: &str) -> std::process::Output {
+    let mut child = command
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the process starts");
+    let started = std::time::Instant::now();
+    while child.try_wait().expect("waits").is_none() {
+        if started.elapsed().as_secs() > secs {
+            let _ = child.kill();
+            panic!("{what} after {secs} s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(200));
+    }
+    child.wait_with_output().expect("its output")
+}

@@ -197,7 +197,9 @@ pub async fn serve(
                 async move { queue.send(Input::Embedding(s)).await.is_ok() }
             });
             tokio::select! {
-                () = follow => {}
+                followed = follow => if let Err(e) = followed {
+                    tracing::error!("learner: {e}; no new embedding will arrive");
+                },
                 () = stop => {}
             }
         });
