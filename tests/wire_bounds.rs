@@ -104,3 +104,42 @@ async fn empty_fragments_and_more_episodes_than_ends_are_refused() {
     );
     learner.stop().await.expect("learner stops");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn connections_that_never_speak_are_closed_and_the_service_answers_throughout() {
+    use tokio::io::AsyncReadExt;
+    let c = config(EnvName::Gridworld, Algo::Ppo, "bounds-silent");
+    let learner = start_learner(&c, None).await;
+    let addr = learner.url.trim_start_matches("http://").to_string();
+    let mut silent = Vec::new();
+    for _ in 0..300 {
+        silent.push(
+            tokio::net::TcpStream::connect(&addr)
+                .await
+                .expect("connects"),
+        );
+    }
+    let health = || async {
+        let channel = tonic::transport::Endpoint::from_shared(learner.url.clone())
+            .expect("a URL")
+            .connect()
+            .await
+            .expect("connects");
+        tonic_health::pb::health_client::HealthClient::new(channel)
+            .check(tonic_health::pb::HealthCheckRequest::default())
+            .await
+            .expect("answers")
+    };
+    health().await;
+    // every silent one is closed by the server once its time to speak has passed
+    let deadline = jsae_proto::accept::FIRST_BYTES_TIMEOUT + std::time::Duration::from_secs(5);
+    for stream in &mut silent {
+        let mut byte = [0u8; 1];
+        let read = tokio::time::timeout(deadline, stream.read(&mut byte))
+            .await
+            .expect("closed in time");
+        assert!(matches!(read, Ok(0) | Err(_)), "{read:?}");
+    }
+    health().await;
+    learner.stop().await.expect("learner stops");
+}

@@ -10,7 +10,8 @@
 //! `messages` (the messages), `validate` (checks every receiver runs on input), `settings`
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
-//! health, reflection, shutdown signals, a service's `main`, backoff), `security` (the
+//! health, reflection, shutdown signals, a service's `main`, backoff), `accept` (only
+//! connections that speak in time reach a server), `security` (the
 //! token and TLS), `status` (the one mapping of refusals to gRPC codes), `run_dir` (the run
 //! directory's file names; the latest checkpoint's layout and checksum in
 //! `checkpoint_file`), `random_id` (identifiers nobody can guess) and `client` (following
@@ -18,6 +19,7 @@
 
 #![forbid(unsafe_code)]
 
+pub mod accept;
 mod batch;
 mod checkpoint_file;
 pub mod client;

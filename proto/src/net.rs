@@ -6,7 +6,6 @@
 use std::time::Duration;
 
 use tokio::net::TcpListener;
-use tonic::transport::server::TcpIncoming;
 
 use crate::security::Security;
 use crate::wire::FILE_DESCRIPTOR_SET;
@@ -14,12 +13,6 @@ use crate::wire::FILE_DESCRIPTOR_SET;
 /// Binds `addr` (`host:port`; port 0 picks a free one).
 pub async fn bind(addr: &str) -> std::io::Result<TcpListener> {
     TcpListener::bind(addr).await
-}
-
-/// The accepted connections of `listener`, with TCP_NODELAY on (without it, streaming over
-/// loopback measured 20-90x slower).
-pub fn incoming(listener: TcpListener) -> TcpIncoming {
-    TcpIncoming::from(listener).with_nodelay(Some(true))
 }
 
 /// The standard `grpc.reflection.v1` service over `jsae.proto`.
@@ -199,7 +192,8 @@ pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5
 pub const KEEPALIVE: std::time::Duration = std::time::Duration::from_secs(20);
 
 /// Serves `service` on `listener` beside `grpc.health.v1.Health` (reporting it SERVING) and
-/// server reflection, until `shutdown` resolves. Every service of the project is served so.
+/// server reflection, until `shutdown` resolves; a connection reaches it only once it has
+/// spoken ([`crate::accept`]). Every service of the project is served so.
 /// `security` decides TLS and the token, which every service but health requires.
 /// `receive_window`: the HTTP/2 flow-control window of each call and of each connection, in
 /// bytes (None: hyper's default, about 1 MB): how much a client may send that the service has
@@ -242,7 +236,10 @@ where
         .add_service(health_service)
         .add_service(security.guard(reflection()?))
         .add_service(security.guard(service))
-        .serve_with_incoming_shutdown(incoming(listener), signal);
+        .serve_with_incoming_shutdown(
+            crate::accept::spoken(listener, crate::accept::FIRST_BYTES_TIMEOUT),
+            signal,
+        );
     tokio::pin!(serving);
     // a graceful shutdown waits for every open call to end; a client that stops reading a
     // server stream never lets it end, so after SHUTDOWN_GRACE its connection is dropped
