@@ -5,7 +5,11 @@
 //! at most 1). It counts the rollouts it sent and the versions that came since a baseline.
 //!
 //! The wait is not forever: an actor whose round the learner cannot complete (another actor
-//! died) goes on after a while and counts afresh. How long adapts to the run: the actor
+//! died) goes on after a while. The rollouts still out stay counted for one more wait: where
+//! the learner was only late (a round held to its deadline on a loaded machine), their
+//! answer brings the actor back in step, where counting afresh at once left it one rollout
+//! ahead, at lag 1, for the rest of the run; where they were dropped, the next wait ends the
+//! same way and the actor counts afresh. How long adapts to the run: the actor
 //! measures how long each newer version took to arrive once it started waiting (the
 //! learner's update plus the wait for the other actors' rollouts), keeps the largest recent
 //! one (the older ones decaying by a tenth at each new measurement), and waits `WAIT_FACTOR`
@@ -47,6 +51,9 @@ struct Count {
     waiting: Option<Instant>,
     /// Rollouts of an earlier embedding are among `sent` and no newer version has come yet.
     carried: bool,
+    /// The actor went on after a wait with rollouts still out, which stay in `sent` until
+    /// answered or until the next wait also ends.
+    late: bool,
 }
 
 /// One actor's pacing state.
@@ -85,6 +92,7 @@ impl Pacing {
             seen: version.0,
             waiting: None,
             carried: false,
+            late: false,
         };
         let c = match &mut self.count {
             // an older policy: a learner restarted from a checkpoint
@@ -115,6 +123,7 @@ impl Pacing {
         }
         let answered = version.0 - c.base.0;
         if c.sent < answered + self.rollouts_per_policy {
+            c.late = false;
             return Pace::Collect;
         }
         let since = *c.waiting.get_or_insert(now);
@@ -126,8 +135,15 @@ impl Pacing {
         if now.duration_since(since) < wait {
             return Pace::Wait;
         }
-        // overdue: go on under this version, and count afresh
-        *c = fresh;
+        // overdue: go on under this version, the rollouts still out counted once more (the
+        // learner may only be late); a second wait in a row (or one for an old embedding's
+        // rollouts, which the learner drops) counts afresh
+        if c.late || c.carried {
+            *c = fresh;
+        } else {
+            c.late = true;
+            c.waiting = None;
+        }
         Pace::Collect
     }
 
@@ -201,13 +217,35 @@ mod tests {
         assert_eq!(p.pace((6, 1), t0 + 20 * MS), Pace::Collect);
         p.sent();
         assert_eq!(p.pace((6, 1), t0 + 20 * MS), Pace::Wait);
-        // no version comes (another actor died): go on after the wait, counting afresh
+        // no version comes (another actor died): go on after the wait with one more out,
+        // and after a second wait count afresh
         assert_eq!(p.pace((6, 1), t0 + 69 * MS), Pace::Wait);
         assert_eq!(p.pace((6, 1), t0 + 70 * MS), Pace::Collect);
         p.sent();
-        assert_eq!(p.pace((6, 1), t0 + 70 * MS), Pace::Collect);
+        assert_eq!(p.pace((6, 1), t0 + 70 * MS), Pace::Wait);
+        assert_eq!(p.pace((6, 1), t0 + 119 * MS), Pace::Wait);
+        assert_eq!(p.pace((6, 1), t0 + 120 * MS), Pace::Collect);
         p.sent();
-        assert_eq!(p.pace((6, 1), t0 + 71 * MS), Pace::Wait);
+        assert_eq!(p.pace((6, 1), t0 + 120 * MS), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((6, 1), t0 + 121 * MS), Pace::Wait);
+    }
+
+    #[test]
+    fn a_late_answer_after_the_wait_brings_the_actor_back_to_lag_zero() {
+        let t0 = Instant::now();
+        let mut p = Pacing::new(1, 100 * MS);
+        assert_eq!(p.pace((4, 1), t0), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((4, 1), t0), Pace::Wait);
+        // the learner holds its round past the actor's wait: the actor goes on
+        assert_eq!(p.pace((4, 1), t0 + 100 * MS), Pace::Collect);
+        p.sent();
+        // the first rollout's answer comes late: the second is still out, so wait for it
+        assert_eq!(p.pace((5, 1), t0 + 110 * MS), Pace::Wait, "not one ahead");
+        assert_eq!(p.pace((6, 1), t0 + 120 * MS), Pace::Collect);
+        p.sent();
+        assert_eq!(p.pace((6, 1), t0 + 120 * MS), Pace::Wait, "in step again");
     }
 
     #[test]

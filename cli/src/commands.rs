@@ -32,6 +32,10 @@ pub enum Command {
         /// The ladder's actor counts, e.g. `1,2,4,8` [default: 1, 2, 4, ... up to the cores].
         #[arg(long, value_delimiter = ',', requires = "scaling")]
         actors: Vec<usize>,
+        /// Stepping threads of every actor in the ladder [default: 0, the run's rule: the
+        /// cores less one, over the actors].
+        #[arg(long, default_value_t = 0, requires = "scaling")]
+        step_threads: usize,
         /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
         /// env, the actor with batched inference, Gymnasium).
         #[arg(long)]
@@ -150,6 +154,7 @@ pub fn run(command: Command) -> ExitCode {
             learner,
             scaling,
             actors,
+            step_threads,
             mujoco,
             recommender,
             envs,
@@ -164,7 +169,10 @@ pub fn run(command: Command) -> ExitCode {
                 } else {
                     actors
                 };
-                print!("{}", crate::bench::scaling::run(&ladder, quick));
+                print!(
+                    "{}",
+                    crate::bench::scaling::run(&ladder, step_threads, quick)
+                );
                 return ExitCode::SUCCESS;
             }
             if learner {

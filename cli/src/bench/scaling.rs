@@ -90,6 +90,8 @@ struct Rung {
     actors: usize,
     rollouts_per_policy: usize,
     minibatches: Option<usize>,
+    /// Every actor's stepping threads (0: the run's rule).
+    step_threads: usize,
 }
 
 fn config(rung: Rung, env_steps: u64, out: PathBuf) -> TrainConfig {
@@ -97,8 +99,10 @@ fn config(rung: Rung, env_steps: u64, out: PathBuf) -> TrainConfig {
         actors,
         rollouts_per_policy,
         minibatches,
+        step_threads,
     } = rung;
     let mut c = TrainConfig::defaults(EnvName::HalfCheetah, Algo::Ppo);
+    c.step_threads = step_threads;
     c.ppo.minibatches = minibatches;
     c.actors = actors;
     c.rollouts_per_policy = rollouts_per_policy;
@@ -133,20 +137,30 @@ fn learner_limit(actors: usize, minibatches: Option<usize>, quick: bool) -> (f64
 }
 
 /// Measures one process and every rung of the ladder.
-pub fn measure(ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>> {
+pub fn measure(
+    ladder: &[usize],
+    step_threads: usize,
+    quick: bool,
+) -> anyhow::Result<Vec<ScalingRow>> {
     let root = std::env::temp_dir().join(format!("jsae-bench-scaling-{}", std::process::id()));
-    let rows = measure_in(&root, ladder, quick);
+    let rows = measure_in(&root, ladder, step_threads, quick);
     let _ = std::fs::remove_dir_all(&root);
     rows
 }
 
-fn measure_in(root: &Path, ladder: &[usize], quick: bool) -> anyhow::Result<Vec<ScalingRow>> {
+fn measure_in(
+    root: &Path,
+    ladder: &[usize],
+    step_threads: usize,
+    quick: bool,
+) -> anyhow::Result<Vec<ScalingRow>> {
     let exe = launch::current_exe()?;
     let mut rows = Vec::new();
     let one_rung = Rung {
         actors: 1,
         rollouts_per_policy: 1,
         minibatches: None,
+        step_threads,
     };
     let one = config(one_rung, run_steps(1, quick), root.join("one-process"));
     let mut progress = Progress::new(one.env_steps, true);
@@ -175,6 +189,7 @@ fn measure_in(root: &Path, ladder: &[usize], quick: bool) -> anyhow::Result<Vec<
                 actors,
                 rollouts_per_policy,
                 minibatches,
+                step_threads,
             };
             let (limit, minibatch) = *limits
                 .entry(minibatches)
@@ -217,13 +232,17 @@ pub fn default_ladder() -> Vec<usize> {
 }
 
 /// Runs the measurement and formats the table.
-pub fn run(ladder: &[usize], quick: bool) -> String {
+pub fn run(ladder: &[usize], step_threads: usize, quick: bool) -> String {
     let raw = super::mujoco::env_rate(Robot::HalfCheetah, if quick { 20_000 } else { 100_000 });
     let cores = std::thread::available_parallelism().map_or(1, usize::from);
     let mut out = format!(
         "HalfCheetah PPO end to end, {cores} cores; every actor 16 envs x 128 steps, the batch one \
          rollout of every actor; raw stepping (our env, random actions, one thread, this run): \
-         {raw:.0} steps/s\n"
+         {raw:.0} steps/s; actors' stepping threads: {}\n",
+        match step_threads {
+            0 => "the run's rule (cores less one, over the actors)".to_string(),
+            n => n.to_string(),
+        }
     );
     out.push_str(&format!(
         "{:<12} {:>6} {:>6} {:>9} {:>9} {:>12} {:>7} {:>13} {:>8} {:>6} {:>8} {:>9}\n",
@@ -240,7 +259,7 @@ pub fn run(ladder: &[usize], quick: bool) -> String {
         "dropped",
         "dropped e"
     ));
-    match measure(ladder, quick) {
+    match measure(ladder, step_threads, quick) {
         Ok(rows) => {
             for r in rows {
                 out.push_str(&format!(
