@@ -19,6 +19,7 @@ use jsae_proto::run_dir::RunDir;
 use jsae_proto::security::SecurityFlags;
 use jsae_proto::settings::TrainConfig;
 
+use crate::log_echo::LogEcho;
 use crate::plot;
 use crate::progress::Progress;
 use crate::train::{RunOptions, RunOutcome, TrainError, run_id};
@@ -314,7 +315,17 @@ pub fn train_processes(
     }
 
     let metrics = run.metrics_csv();
+    let mut echoes: Vec<LogEcho> = embedder
+        .iter()
+        .map(|_| "embedder".to_string())
+        .chain(["learner".to_string()])
+        .chain((0..config.actors).map(|id| format!("actor-{id}")))
+        .map(|name| LogEcho::new(&name, run.log(&name)))
+        .collect();
     let status = loop {
+        for echo in &mut echoes {
+            echo.show_new(progress);
+        }
         if let Ok(Some(status)) = learner.child.try_wait() {
             break status;
         }

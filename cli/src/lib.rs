@@ -2,7 +2,8 @@
 //!
 //! Layout: `train_command` (`jsae train`'s arguments, settings, run directory and `--resume`),
 //! `train` (the one-process driver: embedder, learner and actors in lockstep, the
-//! deterministic mode), `launch` (the services started as processes on loopback), `progress`
+//! deterministic mode), `launch` (the services started as processes on loopback; `log_echo`
+//! shows their warnings and errors on `jsae train`'s output), `progress`
 //! (the progress bar), `plot` (a run directory's plots), `bench` (update, inference, transport,
 //! MuJoCo and Recommender benchmarks), `replay` (`jsae env-replay`, the Gymnasium parity
 //! check), `experiments` (`jsae sweep` and `jsae report` over the jsae-experiments crate),
@@ -23,6 +24,7 @@ pub mod eval;
 pub mod experiments;
 pub mod health;
 pub mod launch;
+pub mod log_echo;
 pub mod oneshot;
 pub mod plot;
 pub mod progress;

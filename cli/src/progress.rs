@@ -135,6 +135,14 @@ impl Progress {
         }
     }
 
+    /// A warning from one of the run's services: shown even when quiet.
+    pub fn warn(&self, message: &str) {
+        match &self.bar {
+            Some(bar) => bar.println(message),
+            None => tracing::warn!("{message}"),
+        }
+    }
+
     /// The run finished.
     pub fn finish(&self) {
         if let Some(bar) = &self.bar {

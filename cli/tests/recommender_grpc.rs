@@ -219,6 +219,17 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         std::thread::sleep(Duration::from_millis(200));
     }
 
+    // a request over MAX_REQUEST_BYTES (4 MiB) is RESOURCE_EXHAUSTED, as the service's own
+    // limits are (tonic alone says OUT_OF_RANGE)
+    let long: Vec<String> = (0..50_000).map(|i| format!("{i:0>100}")).collect();
+    let history: Vec<&str> = long.iter().map(String::as_str).collect();
+    let refused = recommend(&url, &history, 3).expect_err("a 5 MB request");
+    assert_eq!(
+        refused.code(),
+        tonic::Code::ResourceExhausted,
+        "{refused:?}"
+    );
+
     // SIGTERM: exit 0
     let pid = server.0.id().to_string();
     let killed = Command::new("kill")

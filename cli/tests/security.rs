@@ -346,3 +346,38 @@ fn bad_security_flags_stop_a_service_at_start() {
     assert_eq!(actor.status.code(), Some(2));
     assert!(String::from_utf8_lossy(&actor.stderr).contains("https://"));
 }
+
+/// A certificate that does not name 127.0.0.1: `jsae train` (separate processes) ends
+/// non-zero and says why on its own output, instead of printing nothing while its actors
+/// retry for ever.
+#[test]
+fn a_certificate_for_another_name_ends_the_run_with_the_reason() {
+    let dir = fresh_dir("tls-name");
+    let pki = TestPki::generate_for(&dir, "elsewhere", &["elsewhere.invalid"]).expect("a CA");
+    let mut train = Command::new(env!("CARGO_BIN_EXE_jsae"));
+    train.current_dir(&dir).args([
+        "train",
+        "--env",
+        "gridworld",
+        "--algo",
+        "ppo",
+        "--env-steps",
+        "4096",
+        "--quiet",
+        "--out",
+        "run",
+        "--tls-cert",
+        arg(&pki.cert),
+        "--tls-key",
+        arg(&pki.key),
+        "--tls-ca",
+        arg(&pki.ca),
+    ]);
+    let out = common::stderr_within(&mut train, 120, "jsae train with a misnamed certificate");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{err}");
+    assert!(
+        err.contains("actor-0") && (err.contains("certificate") || err.contains("credentials")),
+        "{err}"
+    );
+}

@@ -16,6 +16,7 @@ use jsae_proto::net;
 use jsae_proto::run_dir::{Checkpoints, Weights};
 use jsae_proto::security::{Security, SecurityFlags};
 use jsae_proto::settings::{ListenFlag, RunFlags, TrainConfig};
+use jsae_proto::streams::StreamLimit;
 use jsae_proto::wire::{self, MAX_MESSAGE_BYTES, pb};
 use jsae_proto::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
 use jsae_telemetry::{EmbedderMetrics, EmbedderSample, MetricsFlag, MetricsRegistry};
@@ -55,6 +56,8 @@ pub struct EmbedderService {
     accepted: Arc<AtomicU64>,
     /// Set by `HoldEmbedding`; the training thread stops its continuous updates.
     held: Arc<AtomicBool>,
+    /// The open embedding streams, capped in all and per connection.
+    watches: StreamLimit,
 }
 
 #[tonic::async_trait]
@@ -104,11 +107,13 @@ impl pb::embedder_server::Embedder for EmbedderService {
 
     async fn watch_embedding(
         &self,
-        _request: Request<pb::WatchRequest>,
+        request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchEmbeddingStream>, Status> {
-        let stream = net::watch_stream(self.published.clone(), &self.stopping, |current| {
-            let chunks = current.as_deref().map(wire::embedding_chunks);
-            (chunks.unwrap_or_default(), false)
+        let permit = self.watches.enter(request.remote_addr())?;
+        // the snapshot's chunks are cut as they are sent, from the one shared snapshot
+        let stream = net::watch_stream(self.published.clone(), &self.stopping, permit, |current| {
+            let chunks = current.clone().map(wire::embedding_chunks);
+            (chunks.into_iter().flatten(), false)
         });
         Ok(Response::new(stream))
     }
@@ -278,11 +283,13 @@ pub async fn serve(
         stopping: stop_rx,
         accepted: Arc::new(AtomicU64::new(0)),
         held: Arc::new(AtomicBool::new(false)),
+        watches: StreamLimit::watches("WatchEmbedding"),
     };
     // the training thread ends before the server only when it fails: the server then stops
     // at once, and the failure is this process's exit (not a service that answers on and
     // never trains)
     let (ended_tx, ended_rx) = tokio::sync::oneshot::channel::<()>();
+    let (interrupted_tx, interrupted_rx) = watch::channel(false);
     let trainer = {
         let config = config.clone();
         let held = service.held.clone();
@@ -312,7 +319,10 @@ pub async fn serve(
         Some(RECEIVE_WINDOW),
         async move {
             tokio::select! {
-                () = shutdown => tracing::info!("embedder: shutting down"),
+                () = shutdown => {
+                    tracing::info!("embedder: shutting down");
+                    let _ = interrupted_tx.send(true);
+                }
                 _ = ended_rx => tracing::error!(
                     "embedder: the training thread stopped; shutting down (its error follows)"
                 ),
@@ -321,9 +331,13 @@ pub async fn serve(
         },
     )
     .await?;
-    // The server (and with it every queue sender) is gone: the thread drains and stops.
-    tokio::task::spawn_blocking(move || trainer.join())
-        .await?
+    // The server (and with it every queue sender) is gone: the thread drains and stops (or,
+    // after a signal, is left to the process's exit when a round keeps it past the grace)
+    let interrupted = *interrupted_rx.borrow();
+    let Some(joined) = net::join_training(trainer, interrupted, "embedder").await? else {
+        return Ok(());
+    };
+    joined
         .map_err(|_| anyhow::anyhow!("the training thread panicked"))?
         .map_err(|e| anyhow::anyhow!("training: {e}"))?;
     Ok(())

@@ -126,7 +126,8 @@ impl CsvMetrics {
             return Self::create(path, columns);
         }
         // A run started by another version may have other columns: refuse, not mix them.
-        let text = std::fs::read_to_string(path)?;
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| io::Error::new(e.kind(), format!("{}: {e}", path.display())))?;
         let header = text.lines().next().unwrap_or("");
         if !header.split(',').eq(columns.iter().copied()) {
             return Err(io::Error::other(format!(
@@ -264,7 +265,7 @@ impl ResumePoint {
         let text = match std::fs::read_to_string(&path) {
             Ok(text) => text,
             Err(e) if e.kind() == io::ErrorKind::NotFound => return Ok(Self::default()),
-            Err(e) => return Err(e),
+            Err(e) => return Err(io::Error::new(e.kind(), format!("{}: {e}", path.display()))),
         };
         let table = MetricsTable::parse(complete_rows(&text))
             .map_err(|e| io::Error::other(format!("{}: {e}", path.display())))?;

@@ -11,7 +11,8 @@
 //! (every setting of a run, read the same way by every service), `wire` (the generated gRPC
 //! code, conversions, snapshot chunking, size limits), `net` (serving with TCP_NODELAY,
 //! health, reflection, shutdown signals, a service's `main`, backoff), `accept` (only
-//! connections that speak in time reach a server), `security` (the
+//! connections that speak in time reach a server, and how many may be open), `streams`
+//! (open streams and calls capped in all and per connection), `security` (the
 //! token and TLS), `status` (the one mapping of refusals to gRPC codes), `run_dir` (the run
 //! directory's file names; the latest checkpoint's layout and checksum in
 //! `checkpoint_file`), `random_id` (identifiers nobody can guess) and `client` (following
@@ -24,6 +25,7 @@ mod batch;
 mod checkpoint_file;
 pub mod client;
 mod codec;
+mod health;
 pub mod logging;
 mod messages;
 pub mod net;
@@ -33,6 +35,7 @@ pub mod security;
 pub mod settings;
 mod spaces;
 mod status;
+pub mod streams;
 mod validate;
 pub mod wire;
 
@@ -42,5 +45,5 @@ pub use messages::{
 };
 pub use random_id::random_id;
 pub use spaces::{ActionSpace, StateSpace};
-pub use status::RpcError;
+pub use status::{RpcError, TooLargeIsExhausted, receive_error};
 pub use validate::{FragmentBounds, MAX_ABS_POLICY_INPUT, ValidationError, check_episodes};

@@ -153,7 +153,7 @@ where
     let mut count = 0;
     loop {
         let msg = tokio::select! {
-            m = stream.message() => m.map_err(crate::wire::receive_error)?,
+            m = stream.message() => m.map_err(crate::status::receive_error)?,
             () = &mut stop => return Err(crate::RpcError::shutting_down(service).into()),
         };
         let Some(msg) = msg else { return Ok(count) };
@@ -186,6 +186,10 @@ pub enum ServeError {
 /// their connections.
 pub const SHUTDOWN_GRACE: std::time::Duration = std::time::Duration::from_secs(5);
 
+/// Most HTTP/2 streams (calls) one connection may have open at once (its SETTINGS); the
+/// long-lived ones have their own, lower caps (`streams`).
+pub const MAX_STREAMS_PER_CONNECTION: u32 = 256;
+
 /// How often a server pings each connection's peer (HTTP/2 PING), and how long it waits for
 /// the answer: a peer whose host vanished without closing the connection is found within
 /// twice this, and its streams end (an actor asked for the evaluation is then replaced).
@@ -217,9 +221,10 @@ where
         + 'static,
     S::Future: Send + 'static,
 {
-    let (health, health_service) = tonic_health::server::health_reporter();
-    health.set_serving::<S>().await;
+    let (stopping_tx, stopping) = tokio::sync::watch::channel(false);
+    let health_service = crate::health::ServingHealth::new(S::NAME, stopping);
     let mut server = tonic::transport::Server::builder()
+        .max_concurrent_streams(Some(MAX_STREAMS_PER_CONNECTION))
         .http2_keepalive_interval(Some(KEEPALIVE))
         .http2_keepalive_timeout(Some(KEEPALIVE))
         .initial_stream_window_size(receive_window)
@@ -230,12 +235,13 @@ where
     let (stopped_tx, stopped_rx) = tokio::sync::oneshot::channel::<()>();
     let signal = async move {
         shutdown.await;
+        let _ = stopping_tx.send(true);
         let _ = stopped_tx.send(());
     };
     let serving = server
         .add_service(health_service)
         .add_service(security.guard(reflection()?))
-        .add_service(security.guard(service))
+        .add_service(security.guard(crate::status::TooLargeIsExhausted(service)))
         .serve_with_incoming_shutdown(
             crate::accept::spoken(listener, crate::accept::FIRST_BYTES_TIMEOUT),
             signal,
@@ -262,20 +268,27 @@ where
 
 /// A server stream that follows `state`: for the current value and every change after it,
 /// `events` gives the messages to send and whether they are the last. The stream ends then,
-/// when the client goes away, or when `stopping` turns true.
-pub fn watch_stream<T, M, F>(
+/// when the client goes away, or when `stopping` turns true; `permit` (its place among the
+/// service's open streams) is freed then. The messages are taken one at a time as the
+/// client reads (one waits in the channel), so a client that stops reading holds one
+/// message, not every message of a snapshot.
+pub fn watch_stream<T, M, I, F>(
     mut state: tokio::sync::watch::Receiver<T>,
     stopping: &tokio::sync::watch::Receiver<bool>,
+    permit: crate::streams::StreamPermit,
     mut events: F,
 ) -> tokio_stream::wrappers::ReceiverStream<Result<M, tonic::Status>>
 where
     T: Clone + Send + Sync + 'static,
     M: Send + 'static,
-    F: FnMut(&T) -> (Vec<M>, bool) + Send + 'static,
+    I: IntoIterator<Item = M>,
+    I::IntoIter: Send,
+    F: FnMut(&T) -> (I, bool) + Send + 'static,
 {
     let stop = stopped(stopping);
-    let (tx, rx) = tokio::sync::mpsc::channel(4);
+    let (tx, rx) = tokio::sync::mpsc::channel(1);
     tokio::spawn(async move {
+        let _permit = permit;
         tokio::pin!(stop);
         loop {
             let now = state.borrow_and_update().clone();
@@ -296,6 +309,36 @@ where
         }
     });
     tokio_stream::wrappers::ReceiverStream::new(rx)
+}
+
+/// How long an interrupted service waits for its training thread to leave the step it is in
+/// (an update of a very large model can take minutes) before it exits without it.
+pub const TRAINING_STOP_GRACE: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// Joins a service's training thread once its server has stopped. When `interrupted` (a
+/// signal, not the end of the run), it waits at most [`TRAINING_STOP_GRACE`] and gives None
+/// if the thread is still busy then (logged): what that step would have written is lost as
+/// in a crash, and the checkpoints on disk stay as they are.
+pub async fn join_training<T: Send + 'static>(
+    thread: std::thread::JoinHandle<T>,
+    interrupted: bool,
+    service: &str,
+) -> Result<Option<std::thread::Result<T>>, tokio::task::JoinError> {
+    let joined = tokio::task::spawn_blocking(move || thread.join());
+    if !interrupted {
+        return joined.await.map(Some);
+    }
+    match tokio::time::timeout(TRAINING_STOP_GRACE, joined).await {
+        Ok(joined) => joined.map(Some),
+        Err(_) => {
+            tracing::warn!(
+                "{service}: the training thread is still busy {} s after the signal; exiting \
+                 without it (the checkpoints on disk stay as they are)",
+                TRAINING_STOP_GRACE.as_secs()
+            );
+            Ok(None)
+        }
+    }
 }
 
 /// Why a service process stops with an error: exit 1, or 2 for a configuration found bad
@@ -372,5 +415,54 @@ where
             eprintln!("{name}: {}", failure.message);
             ExitCode::from(failure.code)
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use std::sync::Arc;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+
+    use tokio_stream::StreamExt;
+
+    use crate::streams::{Cap, StreamLimit};
+
+    #[tokio::test]
+    async fn a_stream_takes_its_messages_as_the_client_reads_and_frees_its_place_at_the_end() {
+        let taken = Arc::new(AtomicUsize::new(0));
+        let (state_tx, state) = tokio::sync::watch::channel(());
+        let (_stop_tx, stopping) = tokio::sync::watch::channel(false);
+        let limit = StreamLimit::new("Test", Cap { n: 1, name: "ONE" }, Cap { n: 1, name: "ONE" });
+        let permit = limit.enter(None).expect("a place");
+        let counted = taken.clone();
+        let mut stream = super::watch_stream(state, &stopping, permit, move |()| {
+            let counted = counted.clone();
+            // a snapshot of 1,000 chunks, each counted when it is cut
+            let chunks = (0..1000).inspect(move |_| {
+                counted.fetch_add(1, Ordering::SeqCst);
+            });
+            (chunks, false)
+        });
+        tokio::time::sleep(std::time::Duration::from_millis(200)).await;
+        assert!(
+            taken.load(Ordering::SeqCst) <= 2,
+            "a client that does not read holds at most one message waiting: {} cut",
+            taken.load(Ordering::SeqCst)
+        );
+        for expected in 0..10 {
+            let got = stream.next().await.expect("a message").expect("ok");
+            assert_eq!(got, expected);
+        }
+        assert!(taken.load(Ordering::SeqCst) <= 12);
+        assert_eq!(limit.open(), 1);
+        drop(stream);
+        drop(state_tx);
+        for _ in 0..50 {
+            if limit.open() == 0 {
+                break;
+            }
+            tokio::time::sleep(std::time::Duration::from_millis(10)).await;
+        }
+        assert_eq!(limit.open(), 0, "the place is free once the client is gone");
     }
 }

@@ -361,6 +361,11 @@ pub mod test_certs {
         /// Generates a fresh CA and leaf into `dir` (files `NAME-ca.pem`, `NAME-cert.pem`,
         /// `NAME-key.pem`).
         pub fn generate(dir: &Path, name: &str) -> Result<Self, rcgen::Error> {
+            Self::generate_for(dir, name, &["localhost", "127.0.0.1"])
+        }
+
+        /// As [`TestPki::generate`], the leaf naming `hosts` only.
+        pub fn generate_for(dir: &Path, name: &str, hosts: &[&str]) -> Result<Self, rcgen::Error> {
             std::fs::create_dir_all(dir).map_err(|_| rcgen::Error::CouldNotParseCertificate)?;
             let mut ca_params = CertificateParams::new(Vec::<String>::new())?;
             ca_params.is_ca = IsCa::Ca(BasicConstraints::Unconstrained);
@@ -370,7 +375,7 @@ pub mod test_certs {
             let ca = CertifiedIssuer::self_signed(ca_params, KeyPair::generate()?)?;
             let key = KeyPair::generate()?;
             let mut params =
-                CertificateParams::new(vec!["localhost".to_string(), "127.0.0.1".to_string()])?;
+                CertificateParams::new(hosts.iter().map(|h| (*h).to_string()).collect::<Vec<_>>())?;
             params
                 .distinguished_name
                 .push(DnType::CommonName, format!("jsae test service {name}"));

@@ -28,25 +28,12 @@ pub const FILE_DESCRIPTOR_SET: &[u8] = include_bytes!(concat!(env!("OUT_DIR"), "
 /// of [`SNAPSHOT_CHUNK`] bytes, so only transition batches and fragments come near it.
 pub const MAX_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
 
-/// Bytes of snapshot per chunk (1 MiB).
-pub const SNAPSHOT_CHUNK: usize = 1024 * 1024;
+/// Bytes of snapshot per chunk (256 KiB): what a watch stream holds of a snapshot at most,
+/// beside the shared snapshot.
+pub const SNAPSHOT_CHUNK: usize = 256 * 1024;
 
 /// Largest snapshot a receiver reassembles (256 MiB).
 pub const MAX_SNAPSHOT_BYTES: u64 = 256 * 1024 * 1024;
-
-/// A receive error of a client stream as the caller should see it: tonic reports a message
-/// above the size limit as OUT_OF_RANGE; it is RESOURCE_EXHAUSTED.
-pub fn receive_error(status: tonic::Status) -> tonic::Status {
-    if status.code() == tonic::Code::OutOfRange && status.message().contains("too large") {
-        crate::RpcError::ResourceExhausted(format!(
-            "{} (MAX_MESSAGE_BYTES = {MAX_MESSAGE_BYTES})",
-            status.message()
-        ))
-        .into()
-    } else {
-        status
-    }
-}
 
 fn missing(field: &'static str) -> ValidationError {
     ValidationError::Missing { field }
@@ -254,8 +241,68 @@ impl EvalReport {
     }
 }
 
-/// Splits a snapshot's bytes into chunks of at most [`SNAPSHOT_CHUNK`] bytes (one empty
-/// chunk for empty bytes), the losses and the structure measure on every chunk.
+/// A snapshot's chunks of at most [`SNAPSHOT_CHUNK`] bytes (one empty chunk for empty
+/// bytes), the losses and the structure measure on every chunk, cut one at a time as they
+/// are taken: a stream that sends them holds the shared snapshot and one chunk, never a copy
+/// of the whole.
+pub struct SnapshotChunks<S> {
+    snapshot: std::sync::Arc<S>,
+    bytes: fn(&S) -> &[u8],
+    header: pb::SnapshotChunk,
+    offset: usize,
+    done: bool,
+}
+
+impl<S> std::fmt::Debug for SnapshotChunks<S> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SnapshotChunks")
+            .field("version", &self.header.version)
+            .field("total_len", &self.header.total_len)
+            .field("offset", &self.offset)
+            .finish()
+    }
+}
+
+impl<S> Iterator for SnapshotChunks<S> {
+    type Item = pb::SnapshotChunk;
+
+    fn next(&mut self) -> Option<pb::SnapshotChunk> {
+        if self.done {
+            return None;
+        }
+        let bytes = (self.bytes)(&self.snapshot);
+        let end = (self.offset + SNAPSHOT_CHUNK).min(bytes.len());
+        let chunk = pb::SnapshotChunk {
+            offset: self.offset as u64,
+            data: bytes[self.offset..end].to_vec(),
+            last: end == bytes.len(),
+            ..self.header.clone()
+        };
+        self.offset = end;
+        self.done = chunk.last;
+        Some(chunk)
+    }
+}
+
+impl<S> SnapshotChunks<S> {
+    /// The chunks of `bytes(snapshot)`, each with `header`'s version, losses and structure.
+    fn new(snapshot: std::sync::Arc<S>, bytes: fn(&S) -> &[u8], header: pb::SnapshotChunk) -> Self {
+        let total_len = bytes(&snapshot).len() as u64;
+        Self {
+            snapshot,
+            bytes,
+            header: pb::SnapshotChunk {
+                total_len,
+                ..header
+            },
+            offset: 0,
+            done: false,
+        }
+    }
+}
+
+/// Splits a snapshot's bytes into chunks (all at once; a stream takes them one at a time
+/// from [`SnapshotChunks`]).
 pub fn chunk_snapshot(
     version: u64,
     bytes: &[u8],
@@ -263,48 +310,35 @@ pub fn chunk_snapshot(
     decoder_loss: f32,
     action_structure: Option<f32>,
 ) -> Vec<pb::SnapshotChunk> {
-    let total_len = bytes.len() as u64;
-    let pieces: Vec<&[u8]> = if bytes.is_empty() {
-        vec![&[]]
-    } else {
-        bytes.chunks(SNAPSHOT_CHUNK).collect()
+    let header = pb::SnapshotChunk {
+        version,
+        model_loss,
+        decoder_loss,
+        action_structure,
+        ..Default::default()
     };
-    let last = pieces.len() - 1;
-    let mut offset = 0;
-    pieces
-        .into_iter()
-        .enumerate()
-        .map(|(i, data)| {
-            let chunk = pb::SnapshotChunk {
-                version,
-                total_len,
-                offset,
-                data: data.to_vec(),
-                last: i == last,
-                model_loss,
-                decoder_loss,
-                action_structure,
-            };
-            offset += data.len() as u64;
-            chunk
-        })
-        .collect()
+    SnapshotChunks::new(std::sync::Arc::new(bytes.to_vec()), Vec::as_slice, header).collect()
 }
 
-/// The chunks of an embedding snapshot.
-pub fn embedding_chunks(s: &EmbeddingSnapshot) -> Vec<pb::SnapshotChunk> {
-    chunk_snapshot(
-        s.version,
-        &s.bytes,
-        s.model_loss,
-        s.decoder_loss,
-        s.action_structure,
-    )
+/// The chunks of a shared embedding snapshot, cut as they are taken.
+pub fn embedding_chunks(s: std::sync::Arc<EmbeddingSnapshot>) -> SnapshotChunks<EmbeddingSnapshot> {
+    let header = pb::SnapshotChunk {
+        version: s.version,
+        model_loss: s.model_loss,
+        decoder_loss: s.decoder_loss,
+        action_structure: s.action_structure,
+        ..Default::default()
+    };
+    SnapshotChunks::new(s, |s| &s.bytes, header)
 }
 
-/// The chunks of a policy snapshot.
-pub fn policy_chunks(s: &PolicySnapshot) -> Vec<pb::SnapshotChunk> {
-    chunk_snapshot(s.version, &s.bytes, 0.0, 0.0, None)
+/// The chunks of a shared policy snapshot, cut as they are taken.
+pub fn policy_chunks(s: std::sync::Arc<PolicySnapshot>) -> SnapshotChunks<PolicySnapshot> {
+    let header = pb::SnapshotChunk {
+        version: s.version,
+        ..Default::default()
+    };
+    SnapshotChunks::new(s, |s| &s.bytes, header)
 }
 
 /// Reassembles snapshots from a stream of chunks; a chunk out of order or of another version

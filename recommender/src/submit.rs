@@ -13,15 +13,15 @@
 //! call that finds every slot taken waits its turn (up to [`SLOT_WAIT`]), and one connection
 //! has at most [`MAX_CALLS_PER_CONNECTION`] calls at once.
 
-use std::collections::HashMap;
 use std::net::SocketAddr;
+use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
-use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use jsae_envs::recsys::sessions::{Session, check_session};
 use jsae_envs::recsys::staging::{Staged, StagedSessions};
 use jsae_proto::RpcError;
+use jsae_proto::streams::{Cap, ConnectionGuard, PerConnection};
 use jsae_proto::wire::pb;
 use prost::Message;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -74,7 +74,7 @@ pub struct SubmitBudget {
     slots: Arc<Semaphore>,
     waiting: Arc<AtomicUsize>,
     /// Calls in progress or waiting, per connection (its peer's address).
-    connections: Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
+    connections: PerConnection,
     bytes: Arc<AtomicU64>,
 }
 
@@ -83,7 +83,13 @@ impl Default for SubmitBudget {
         Self {
             slots: Arc::new(Semaphore::new(MAX_CONCURRENT_CALLS)),
             waiting: Arc::default(),
-            connections: Arc::default(),
+            connections: PerConnection::new(
+                "SubmitSessions",
+                Cap {
+                    n: MAX_CALLS_PER_CONNECTION,
+                    name: "MAX_CALLS_PER_CONNECTION",
+                },
+            ),
             bytes: Arc::default(),
         }
     }
@@ -104,7 +110,7 @@ impl SubmitBudget {
     /// that came before it), unless its connection has [`MAX_CALLS_PER_CONNECTION`] calls
     /// already or [`MAX_WAITING_CALLS`] wait.
     async fn enter(&self, connection: Option<SocketAddr>) -> Result<CallBudget, RpcError> {
-        let connection = ConnectionCall::enter(&self.connections, connection)?;
+        let connection = self.connections.enter(connection)?;
         let waiting = self.waiting.fetch_add(1, Ordering::SeqCst);
         let _waiting = Counted(&self.waiting);
         if waiting >= MAX_WAITING_CALLS {
@@ -141,53 +147,13 @@ impl Drop for Counted<'_> {
     }
 }
 
-/// A call counted against its connection's [`MAX_CALLS_PER_CONNECTION`] while it lives.
-#[derive(Debug)]
-struct ConnectionCall {
-    connections: Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
-    peer: Option<SocketAddr>,
-}
-
-impl ConnectionCall {
-    fn enter(
-        connections: &Arc<Mutex<HashMap<Option<SocketAddr>, usize>>>,
-        peer: Option<SocketAddr>,
-    ) -> Result<Self, RpcError> {
-        let mut calls = connections.lock().unwrap_or_else(|e| e.into_inner());
-        let n = calls.entry(peer).or_default();
-        if *n >= MAX_CALLS_PER_CONNECTION {
-            return Err(RpcError::ResourceExhausted(format!(
-                "this connection has {MAX_CALLS_PER_CONNECTION} SubmitSessions calls in progress \
-                 (MAX_CALLS_PER_CONNECTION): wait for one to end"
-            )));
-        }
-        *n += 1;
-        Ok(Self {
-            connections: connections.clone(),
-            peer,
-        })
-    }
-}
-
-impl Drop for ConnectionCall {
-    fn drop(&mut self) {
-        let mut calls = self.connections.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(n) = calls.get_mut(&self.peer) {
-            *n -= 1;
-            if *n == 0 {
-                calls.remove(&self.peer);
-            }
-        }
-    }
-}
-
 /// One call's share of a [`SubmitBudget`], given back when the call ends.
 #[derive(Debug)]
 struct CallBudget {
     budget: SubmitBudget,
     bytes: u64,
     _slot: OwnedSemaphorePermit,
-    _connection: ConnectionCall,
+    _connection: ConnectionGuard,
 }
 
 impl CallBudget {
@@ -251,9 +217,9 @@ fn nothing_stored(status: impl Into<Status>) -> Status {
 }
 
 /// The error of a stream that broke: a message over [`MAX_REQUEST_BYTES`] is
-/// RESOURCE_EXHAUSTED ([`jsae_proto::wire::receive_error`]), with this service's limit.
+/// RESOURCE_EXHAUSTED ([`jsae_proto::receive_error`]), with this service's limit.
 fn broken_stream(status: Status) -> Status {
-    let status = jsae_proto::wire::receive_error(status);
+    let status = jsae_proto::receive_error(status);
     if status.code() != Code::ResourceExhausted {
         return status;
     }

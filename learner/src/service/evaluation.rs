@@ -2,8 +2,14 @@
 //! run's env steps; it knows which actors are alive by their open policy streams (the
 //! [`Roster`]), so when the asked actor's last stream closes (the actor died, or its
 //! connection did) it asks another actor whose stream is open, or the next one to connect.
-//! Each request has a fresh random id; only the open one is answered.
+//! Each request has a fresh random id; only the open one is answered. An actor id is held by
+//! the connection that opened its stream ([`ActorIds`]).
 
+use std::collections::HashMap;
+use std::net::SocketAddr;
+use std::sync::{Arc, Mutex};
+
+use jsae_proto::RpcError;
 use jsae_proto::wire::pb;
 use tokio::sync::mpsc;
 
@@ -131,9 +137,77 @@ impl Drop for OpenStream {
     }
 }
 
+/// Which connection holds each actor id. An id belongs to the connection whose policy stream
+/// named it first, while any of its streams is open; another connection naming it is refused
+/// (ALREADY_EXISTS, and its client tries again later), so nobody can take another actor's
+/// place in the batch or its evaluation request, which only the named actor's streams carry.
+/// An actor that reconnects gets its id back once its old connection's stream has closed
+/// (at once when its process died; within the keepalive when its host vanished).
+#[derive(Debug, Clone, Default)]
+pub(super) struct ActorIds(Arc<Mutex<HashMap<u64, Holder>>>);
+
+/// The connection holding an actor id, and its open streams naming it.
+type Holder = (Option<SocketAddr>, usize);
+
+impl ActorIds {
+    /// Claims `actor` for `peer`'s connection while the claim lives.
+    pub(super) fn claim(&self, actor: u64, peer: Option<SocketAddr>) -> Result<IdClaim, RpcError> {
+        let mut held = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        let (holder, streams) = held.entry(actor).or_insert((peer, 0));
+        if *holder != peer {
+            return Err(RpcError::AlreadyExists(format!(
+                "actor id {actor} is held by another connection's open policy stream: two \
+                 actors were given one id, or this actor's earlier connection is not closed yet"
+            )));
+        }
+        *streams += 1;
+        Ok(IdClaim {
+            ids: self.clone(),
+            actor,
+        })
+    }
+}
+
+/// An actor id held by one connection while this lives.
+#[derive(Debug)]
+pub(super) struct IdClaim {
+    ids: ActorIds,
+    actor: u64,
+}
+
+impl Drop for IdClaim {
+    fn drop(&mut self) {
+        let mut held = self.ids.0.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, streams)) = held.get_mut(&self.actor) {
+            *streams -= 1;
+            if *streams == 0 {
+                held.remove(&self.actor);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_actor_id_belongs_to_one_connection_while_its_streams_are_open() {
+        let ids = ActorIds::default();
+        let (a, b) = (
+            Some(SocketAddr::from(([127, 0, 0, 1], 1))),
+            Some(SocketAddr::from(([127, 0, 0, 1], 2))),
+        );
+        let first = ids.claim(7, a).expect("first claim");
+        let second = ids.claim(7, a).expect("the same connection again");
+        let e = ids.claim(7, b).expect_err("another connection");
+        assert!(matches!(e, RpcError::AlreadyExists(_)), "{e:?}");
+        let _other = ids.claim(8, b).expect("another id");
+        drop(first);
+        assert!(ids.claim(7, b).is_err(), "a stream of a is still open");
+        drop(second);
+        let _taken_over = ids.claim(7, b).expect("a's streams closed");
+    }
 
     /// Opens (`Some(steps)`) or closes a stream, then tells the evaluation.
     fn stream(

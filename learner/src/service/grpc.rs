@@ -11,6 +11,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
+use jsae_proto::streams::StreamLimit;
 use jsae_proto::wire::{self, pb};
 use jsae_proto::{
     EmbeddingSnapshot, EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError, net,
@@ -19,7 +20,7 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use super::evaluation::OpenStream;
+use super::evaluation::{ActorIds, OpenStream};
 
 /// Largest fragment accepted, in steps.
 pub const MAX_FRAGMENT_STEPS: usize = 65_536;
@@ -88,6 +89,10 @@ pub struct LearnerService {
     /// Whether the batch is shared among the actors (`batch_envs`): a new actor's stream
     /// then waits up to [`SHARE_GRACE`] for its share.
     pub(super) shares_batch: bool,
+    /// The open policy streams, capped in all and per connection.
+    pub(super) watches: StreamLimit,
+    /// Which connection holds each actor id.
+    pub(super) actor_ids: ActorIds,
 }
 
 impl LearnerService {
@@ -222,7 +227,14 @@ impl pb::learner_server::Learner for LearnerService {
         request: Request<pb::WatchRequest>,
     ) -> Result<Response<Self::WatchPolicyStream>, Status> {
         use pb::policy_event::Event;
+        let peer = request.remote_addr();
+        let permit = self.watches.enter(peer)?;
         let watch = request.into_inner();
+        let claim = if watch.evaluates {
+            Some(self.actor_ids.claim(watch.actor_id, peer)?)
+        } else {
+            None
+        };
         // an actor's stream is counted while it is open: the batch is its share of a shared
         // batch, or one rollout of it (`roster`), and an actor that dies while asked for the
         // evaluation is replaced
@@ -246,7 +258,8 @@ impl pb::learner_server::Learner for LearnerService {
             }
         }
         let (mut sent_version, mut sent_eval, mut sent_share) = (None, None, None);
-        let stream = net::watch_stream(self.state.clone(), &self.stopping, move |now| {
+        let stream = net::watch_stream(self.state.clone(), &self.stopping, permit, move |now| {
+            let _held = &claim;
             let mut events = Vec::new();
             // the share first: it applies to the rollouts under the snapshot that follows. A
             // stream opens with one (0, all: the batch is not shared, or not yet known), so an
@@ -265,26 +278,31 @@ impl pb::learner_server::Learner for LearnerService {
                     events.push(Event::Share(pb::Share { envs }));
                 }
             }
+            // the snapshot's chunks are cut as they are sent, from the one shared snapshot
+            let mut chunks = None;
             if let Some(s) = &now.snapshot
                 && sent_version != Some(s.version)
             {
                 sent_version = Some(s.version);
-                events.extend(wire::policy_chunks(s).into_iter().map(Event::Chunk));
+                chunks = Some(wire::policy_chunks(s.clone()).map(Event::Chunk));
             }
+            let mut after = Vec::new();
             if let Some(e) = &now.evaluate
                 && actor.as_ref().is_some_and(|a| a.actor() == e.actor_id)
                 && sent_eval != Some(e.request_id)
             {
                 sent_eval = Some(e.request_id);
-                events.push(Event::Evaluate(*e));
+                after.push(Event::Evaluate(*e));
             }
             if now.finished {
-                events.push(Event::Finish(pb::Finish {}));
+                after.push(Event::Finish(pb::Finish {}));
             }
             let events = events
                 .into_iter()
+                .chain(chunks.into_iter().flatten())
+                .chain(after)
                 .map(|event| pb::PolicyEvent { event: Some(event) });
-            (events.collect(), now.finished)
+            (events, now.finished)
         });
         Ok(Response::new(stream))
     }

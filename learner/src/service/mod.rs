@@ -163,6 +163,8 @@ pub async fn serve(
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
         shares_batch: config.shared_batch_envs().is_some(),
+        watches: jsae_proto::streams::StreamLimit::watches("WatchPolicy"),
+        actor_ids: evaluation::ActorIds::default(),
     };
     // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
     let (hold_tx, mut hold_rx) = watch::channel(false);
@@ -257,11 +259,15 @@ pub async fn serve(
         let _ = stop_tx.send(true);
     };
     net::serve(server, listener, &options.security, None, end).await?;
-    if !thread.is_finished() && !publish_rx.borrow().finished {
+    let interrupted = !thread.is_finished() && !publish_rx.borrow().finished;
+    if interrupted {
         // interrupted: the thread ends when its queue closes (the service is gone)
         tracing::info!("learner: interrupted before the end of the run");
     }
-    match tokio::task::spawn_blocking(move || thread.join()).await? {
+    let Some(joined) = net::join_training(thread, interrupted, "learner").await? else {
+        return Ok(None);
+    };
+    match joined {
         Ok(Ok(summary)) => Ok(Some(summary)),
         Ok(Err(_)) if !publish_rx.borrow().finished => Ok(None),
         Ok(Err(e)) => Err(e),

@@ -28,6 +28,14 @@ use jsae_proto::settings::share_envs;
 /// The most env steps one actor may say its rollout delivers (a larger claim would hold
 /// every round until its deadline).
 pub const MAX_ROLLOUT_STEPS: u64 = 1 << 22;
+/// An actor's rollout counts at most this many times the run's own (its `envs_per_actor` x
+/// `rollout_len`), whatever it says.
+pub const MAX_ROLLOUT_FACTOR: u64 = 16;
+/// The batch grows with the actors up to this many of the run's rollouts (or the settings'
+/// batch, where larger); beyond it the batch stays, and the rollouts past it go to the next
+/// update. This bounds what the learner holds pending, however many actors connect and
+/// whatever they say.
+pub const MAX_BATCH_ROLLOUTS: u64 = 64;
 
 /// A round's deadline is this many times the slowest recent round's spread (from its first
 /// fragment to its last), never less than the floor.
@@ -51,6 +59,8 @@ pub(super) struct Roster {
     members: BTreeMap<u64, Member>,
     /// The batch while no actor is present, and an actor's rollout when it does not say.
     fallback: (usize, u64),
+    /// The most one actor's rollout counts for, and the largest batch.
+    max: (u64, u64),
     delivered: BTreeSet<u64>,
     clock: RoundClock,
     /// `batch_envs` where the batch is shared among the actors present.
@@ -72,6 +82,10 @@ impl Roster {
         Self {
             members: BTreeMap::new(),
             fallback: (fallback_batch.max(1), default_rollout.max(1)),
+            max: (
+                (default_rollout.max(1) * MAX_ROLLOUT_FACTOR).min(MAX_ROLLOUT_STEPS),
+                (default_rollout.max(1) * MAX_BATCH_ROLLOUTS).max(fallback_batch as u64),
+            ),
             delivered: BTreeSet::new(),
             clock: RoundClock::new(floor),
             shared: None,
@@ -132,7 +146,7 @@ impl Roster {
     pub(super) fn open(&mut self, actor: u64, rollout_steps: u64, envs: u32) {
         let steps = match rollout_steps {
             0 => self.fallback.1,
-            n => n.min(MAX_ROLLOUT_STEPS),
+            n => n.min(self.max.0),
         };
         let divides = envs > 0 && rollout_steps == steps && steps % u64::from(envs) == 0;
         let envs = if divides { envs } else { 0 };
@@ -234,7 +248,7 @@ impl Roster {
         if steps == 0 {
             self.fallback.0
         } else {
-            steps as usize
+            steps.min(self.max.1) as usize
         }
     }
 
@@ -365,8 +379,27 @@ mod tests {
         r.close(2);
         assert_eq!(r.batch_steps(), 1000);
         r.open(3, u64::MAX, 0);
-        assert_eq!(r.batch_steps(), 1000 + MAX_ROLLOUT_STEPS as usize);
+        assert_eq!(
+            r.batch_steps(),
+            1000 + 512 * MAX_ROLLOUT_FACTOR as usize,
+            "a rollout counts at most 16 of the run's own"
+        );
         assert_eq!(r.counts(), (2, 2));
+    }
+
+    #[test]
+    fn the_batch_stops_growing_at_64_of_the_runs_rollouts() {
+        let mut r = Roster::new(2048, 512, Duration::ZERO);
+        for actor in 0..200 {
+            r.open(actor, 512 * MAX_ROLLOUT_FACTOR, 0);
+        }
+        assert_eq!(r.batch_steps(), 512 * MAX_BATCH_ROLLOUTS as usize);
+        // a settings' batch larger than that stays the floor of the cap
+        let mut r = Roster::new(1 << 20, 512, Duration::ZERO);
+        for actor in 0..200 {
+            r.open(actor, 512 * MAX_ROLLOUT_FACTOR, 0);
+        }
+        assert_eq!(r.batch_steps(), 1 << 20);
     }
 
     #[test]
