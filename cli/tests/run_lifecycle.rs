@@ -372,3 +372,34 @@ fn services_refuse_damaged_checkpoints_rather_than_start_again_over_them() {
     assert_eq!(kept, "update,env_steps\n1,2048\n");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// SIGTERM while a learner builds a large model (4,096 x 4,096, within the settings' bounds,
+/// tens of seconds to build here) stops it within seconds, not at the end of the build.
+#[test]
+fn a_learner_building_a_large_model_stops_on_sigterm() {
+    let root = fresh_dir("lifecycle-large-model");
+    std::fs::write(root.join("large.toml"), "[ppo]\nhidden = [4096, 4096]\n").expect("settings");
+    let learner = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .current_dir(&root)
+        .args(["learner", "--listen", "127.0.0.1:0", "--env", "gridworld"])
+        .args(["--algo", "ppo", "--config", "large.toml", "--out", "run"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .expect("the learner starts");
+    std::thread::sleep(Duration::from_secs(3));
+    let pid = rustix::process::Pid::from_child(&learner);
+    let signalled = Instant::now();
+    rustix::process::kill_process(pid, rustix::process::Signal::TERM).expect("SIGTERM");
+    let stopped = learner.wait_with_output().expect("the learner ends");
+    let log = String::from_utf8_lossy(&stopped.stderr);
+    assert!(
+        signalled.elapsed() < Duration::from_secs(15),
+        "{:?} after SIGTERM: {log}",
+        signalled.elapsed()
+    );
+    assert!(
+        log.contains("stopped while building the model") || log.contains("interrupted"),
+        "{log}"
+    );
+}

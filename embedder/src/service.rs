@@ -334,7 +334,7 @@ pub async fn serve(
     // The server (and with it every queue sender) is gone: the thread drains and stops (or,
     // after a signal, is left to the process's exit when a round keeps it past the grace)
     let interrupted = *interrupted_rx.borrow();
-    let Some(joined) = net::join_training(trainer, interrupted, "embedder").await? else {
+    let Some(joined) = net::join_training(trainer, interrupted, "embedder").await else {
         return Ok(());
     };
     joined

@@ -323,22 +323,22 @@ pub async fn join_training<T: Send + 'static>(
     thread: std::thread::JoinHandle<T>,
     interrupted: bool,
     service: &str,
-) -> Result<Option<std::thread::Result<T>>, tokio::task::JoinError> {
-    let joined = tokio::task::spawn_blocking(move || thread.join());
-    if !interrupted {
-        return joined.await.map(Some);
-    }
-    match tokio::time::timeout(TRAINING_STOP_GRACE, joined).await {
-        Ok(joined) => joined.map(Some),
-        Err(_) => {
+) -> Option<std::thread::Result<T>> {
+    // polled, not joined on a blocking task: the runtime's end would wait for that task, so
+    // for the thread, however long its step takes
+    let deadline = tokio::time::Instant::now() + TRAINING_STOP_GRACE;
+    while !thread.is_finished() {
+        if interrupted && tokio::time::Instant::now() >= deadline {
             tracing::warn!(
                 "{service}: the training thread is still busy {} s after the signal; exiting \
                  without it (the checkpoints on disk stay as they are)",
                 TRAINING_STOP_GRACE.as_secs()
             );
-            Ok(None)
+            return None;
         }
+        tokio::time::sleep(std::time::Duration::from_millis(20)).await;
     }
+    Some(thread.join())
 }
 
 /// Why a service process stops with an error: exit 1, or 2 for a configuration found bad

@@ -100,7 +100,19 @@ pub async fn serve(
 ) -> anyhow::Result<Option<Summary>> {
     let out = RunDir::new(&options.out);
     std::fs::create_dir_all(out.checkpoints().path())?;
-    let mut learner = Learner::for_run(&config);
+    // a large model takes a while to build: off the runtime, so that a signal is heard
+    let mut shutdown = Box::pin(shutdown);
+    let build = tokio::task::spawn_blocking({
+        let config = config.clone();
+        move || Learner::for_run(&config)
+    });
+    let mut learner = tokio::select! {
+        built = build => built?,
+        () = &mut shutdown => {
+            tracing::info!("learner: stopped while building the model");
+            return Ok(None);
+        }
+    };
     let mut started = Instant::now();
     let resumed = match out.checkpoints().read_latest_checkpoint(Weights::Policy) {
         Some(s) => {
@@ -264,7 +276,7 @@ pub async fn serve(
         // interrupted: the thread ends when its queue closes (the service is gone)
         tracing::info!("learner: interrupted before the end of the run");
     }
-    let Some(joined) = net::join_training(thread, interrupted, "learner").await? else {
+    let Some(joined) = net::join_training(thread, interrupted, "learner").await else {
         return Ok(None);
     };
     match joined {
