@@ -20,6 +20,8 @@ use tokio::net::{TcpListener, TcpStream};
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 
+use crate::streams::CountedPlace;
+
 /// How long an accepted connection has to send its first bytes.
 pub const FIRST_BYTES_TIMEOUT: Duration = Duration::from_secs(10);
 /// The bytes a connection must send before the server sees it: HTTP/2's client preface.
@@ -44,21 +46,11 @@ pub fn connection_cap() -> usize {
 /// Connections not yet spoken, oldest first: a number and what closes it.
 type Silent = VecDeque<(u64, oneshot::Sender<()>)>;
 
-/// One connection counted among the server's until dropped.
-#[derive(Debug)]
-struct Counted(Arc<AtomicUsize>);
-
-impl Drop for Counted {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
-    }
-}
-
 /// An accepted connection, counted among the server's connections while it lives.
 #[derive(Debug)]
 pub struct Connection {
     stream: TcpStream,
-    _counted: Counted,
+    _counted: CountedPlace,
 }
 
 impl AsyncRead for Connection {
@@ -172,8 +164,7 @@ fn spoken_capped(
                 }
                 waiting.push_back((n, close));
             }
-            live.fetch_add(1, Ordering::SeqCst);
-            let counted = Counted(live.clone());
+            let (counted, _) = CountedPlace::take(&live);
             let _ = stream.set_nodelay(true);
             let (tx, silent) = (tx.clone(), silent.clone());
             tokio::spawn(async move {

@@ -8,6 +8,7 @@
 
 use std::collections::HashMap;
 use std::net::SocketAddr;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 use crate::RpcError;
@@ -22,6 +23,24 @@ pub const MAX_WATCHES_PER_CONNECTION: usize = 8;
 pub const MAX_HEALTH_WATCHES: usize = 32;
 /// Most of them one connection may hold.
 pub const MAX_HEALTH_WATCHES_PER_CONNECTION: usize = 2;
+
+/// One place in a shared count, taken when made and given back when dropped.
+#[derive(Debug)]
+pub struct CountedPlace(Arc<AtomicUsize>);
+
+impl CountedPlace {
+    /// Takes a place in `count`; also gives the count before it.
+    pub fn take(count: &Arc<AtomicUsize>) -> (Self, usize) {
+        let before = count.fetch_add(1, Ordering::SeqCst);
+        (Self(count.clone()), before)
+    }
+}
+
+impl Drop for CountedPlace {
+    fn drop(&mut self) {
+        self.0.fetch_sub(1, Ordering::SeqCst);
+    }
+}
 
 /// A limit and the name of its constant (which a refusal names).
 #[derive(Debug, Clone, Copy)]
@@ -99,7 +118,7 @@ impl Drop for ConnectionGuard {
 #[derive(Debug, Clone)]
 pub struct StreamLimit {
     total: Cap,
-    open: Arc<std::sync::atomic::AtomicUsize>,
+    open: Arc<AtomicUsize>,
     connections: PerConnection,
 }
 
@@ -131,42 +150,31 @@ impl StreamLimit {
     /// A stream of `peer`, counted while the permit lives; RESOURCE_EXHAUSTED when `total`
     /// are open or its connection holds `per_connection`.
     pub fn enter(&self, peer: Option<SocketAddr>) -> Result<StreamPermit, RpcError> {
-        use std::sync::atomic::Ordering;
         let connection = self.connections.enter(peer)?;
-        let taken = self
-            .open
-            .fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| {
-                (n < self.total.n).then_some(n + 1)
-            });
-        if taken.is_err() {
+        let (place, before) = CountedPlace::take(&self.open);
+        if before >= self.total.n {
             return Err(RpcError::ResourceExhausted(format!(
                 "{} {} streams are open, the most this service holds ({}): try again later",
                 self.total.n, self.connections.what, self.total.name
             )));
         }
         Ok(StreamPermit {
-            open: self.open.clone(),
+            _place: place,
             _connection: connection,
         })
     }
 
     /// Streams open now.
     pub fn open(&self) -> usize {
-        self.open.load(std::sync::atomic::Ordering::SeqCst)
+        self.open.load(Ordering::SeqCst)
     }
 }
 
 /// One open stream of a [`StreamLimit`]; dropping it (when the stream ends) frees its place.
 #[derive(Debug)]
 pub struct StreamPermit {
-    open: Arc<std::sync::atomic::AtomicUsize>,
+    _place: CountedPlace,
     _connection: ConnectionGuard,
-}
-
-impl Drop for StreamPermit {
-    fn drop(&mut self) {
-        self.open.fetch_sub(1, std::sync::atomic::Ordering::SeqCst);
-    }
 }
 
 #[cfg(test)]

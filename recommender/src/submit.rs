@@ -21,7 +21,7 @@ use std::time::Duration;
 use jsae_envs::recsys::sessions::{Session, check_session};
 use jsae_envs::recsys::staging::{Staged, StagedSessions};
 use jsae_proto::RpcError;
-use jsae_proto::streams::{Cap, ConnectionGuard, PerConnection};
+use jsae_proto::streams::{Cap, ConnectionGuard, CountedPlace, PerConnection};
 use jsae_proto::wire::pb;
 use prost::Message;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
@@ -111,8 +111,7 @@ impl SubmitBudget {
     /// already or [`MAX_WAITING_CALLS`] wait.
     async fn enter(&self, connection: Option<SocketAddr>) -> Result<CallBudget, RpcError> {
         let connection = self.connections.enter(connection)?;
-        let waiting = self.waiting.fetch_add(1, Ordering::SeqCst);
-        let _waiting = Counted(&self.waiting);
+        let (_waiting, waiting) = CountedPlace::take(&self.waiting);
         if waiting >= MAX_WAITING_CALLS {
             return Err(RpcError::ResourceExhausted(format!(
                 "{MAX_CONCURRENT_CALLS} SubmitSessions calls are in progress and \
@@ -135,15 +134,6 @@ impl SubmitBudget {
             _slot: slot,
             _connection: connection,
         })
-    }
-}
-
-/// Takes one off a counter when dropped.
-struct Counted<'a>(&'a AtomicUsize);
-
-impl Drop for Counted<'_> {
-    fn drop(&mut self) {
-        self.0.fetch_sub(1, Ordering::SeqCst);
     }
 }
 
