@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# One run launched by hand as README "Running the services by hand" describes: the embedder,
+# One run launched by hand as docs/src/operations/services.md describes: the embedder,
 # the learner and two actors as separate processes on loopback, nothing telling the learner
 # how many actors there are; one actor is killed with SIGKILL 10-15 s in and a replacement
 # (a new id) started. Prints the run's summary.json on one line, prefixed with the seed.

@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The many-core measurements of issue 42 in one script, for a machine with many cores (the
-# numbers in README "Scaling out" came from it): the actor ladder (`jsae bench --scaling`),
+# numbers in docs/src/performance/scaling.md came from it): the actor ladder (`jsae bench --scaling`),
 # HalfCheetah PPO 1M with 1 and 4 actors over 5 seeds (and with 4 and 8 actors keeping 32
 # minibatches), and the separate-process gridworld sweeps with 2 and 4 actors. Everything goes
 # under OUT (default runs/device); each part, once done, into its own tarball in PACK (default

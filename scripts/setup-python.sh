@@ -2,7 +2,7 @@
 # The Python environment the tests and benchmarks use, a venv in .venv with:
 #   gymnasium[mujoco]==1.4.0, mujoco==3.17.0: the MuJoCo parity test, the step-rate benchmark;
 #   grpcio, grpcio-tools, grpcio-health-checking 1.76.0: the Recommender client test (another
-#     language against proto/);
+#     language against wire/proto/);
 #   kubernetes-validate==1.37.0: the offline check of deploy/k8s;
 #   mcap==1.6.0, mcap-protobuf-support==0.6.0: recordings read back by a third-party reader;
 #   tensorboard==2.21.0: event files read back by TensorBoard's own reader.

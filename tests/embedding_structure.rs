@@ -5,8 +5,8 @@ use jsae_actor::ActorWorker;
 use jsae_embedder::{EmbedderTrainer, Embedding};
 use jsae_envs::gridworld::action_motions;
 use jsae_nn::{BurnDevice, DeviceKind};
-use jsae_proto::settings::EnvName;
-use jsae_proto::settings::{Algo, TrainConfig};
+use jsae_settings::EnvName;
+use jsae_settings::{Algo, TrainConfig};
 
 /// Mean motion distance from each action to its `k` nearest neighbours in E, and to all
 /// other actions.

@@ -6,9 +6,9 @@ use jsae_actor::ActorWorker;
 use jsae_embedder::EmbedderTrainer;
 use jsae_learner::Learner;
 use jsae_nn::DeviceKind;
-use jsae_proto::EmbeddingSnapshot;
-use jsae_proto::settings::{Algo, EnvName};
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::small_config;
+use jsae_wire::EmbeddingSnapshot;
 
 #[test]
 fn the_evaluation_goes_back_to_an_older_embedding() {

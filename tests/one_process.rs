@@ -4,8 +4,8 @@
 use jsae_cli::progress::Progress;
 use jsae_cli::train_one_process;
 use jsae_nn::DeviceKind;
-use jsae_proto::settings::Algo;
-use jsae_proto::settings::EnvName;
+use jsae_settings::Algo;
+use jsae_settings::EnvName;
 use jsae_tests::{metrics_without_timing, small_config, summary_without_timing, temp_dir};
 
 #[test]
@@ -87,7 +87,7 @@ fn the_run_directory_holds_config_metrics_summary_checkpoints_and_plots() {
     }
     assert!(metrics.lines().count() > 2);
     // The gridworld's action embeddings are measured against the actions' displacements.
-    let table = jsae_learner::MetricsTable::read(&dir.join("metrics.csv")).expect("reads");
+    let table = jsae_run_dir::MetricsTable::read(&dir.join("metrics.csv")).expect("reads");
     let structure = table.series("env_steps", "embedding_structure");
     assert!(
         structure.last().is_some_and(|p| p.1 > 0.0 && p.1 < 1.5),

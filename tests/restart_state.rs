@@ -3,9 +3,10 @@
 //! the optimiser, the reward scaler, the step accounts and the wall time, over real gRPC on
 //! 127.0.0.1 (the harness is `jsae_tests::services`).
 
-use jsae_learner::{Learner, MetricsTable};
-use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_learner::Learner;
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::{LatestCheckpoint, RunDir, Weights};
+use jsae_settings::{Algo, EnvName, TrainConfig};
 use jsae_tests::services::*;
 
 /// A learner of `config` resumed from `saved`, with the wall time it returned.

@@ -5,9 +5,9 @@
 //! its deadline.
 
 use jsae_actor::service::{ActorExit, ActorReport};
-use jsae_learner::MetricsTable;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::{Algo, EnvName, TrainConfig};
 use jsae_tests::services::*;
 
 /// A column of the run's metrics.csv, one value per update.

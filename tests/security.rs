@@ -7,14 +7,14 @@
 use std::path::Path;
 use std::time::Duration;
 
-use jsae_proto::security::test_certs::TestPki;
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::settings::{Algo, EnvName};
-use jsae_proto::wire::pb;
+use jsae_net::security::test_certs::TestPki;
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::services::{
     bind_for, config, start_actor_secured, start_embedder_with, start_learner_secured,
 };
 use jsae_tests::temp_dir;
+use jsae_wire::pb;
 use tonic::Code;
 
 const TOKEN: &str = "a4c1e9f07b3d5a2c8e6f1b0d9c7a5e3f";
@@ -119,7 +119,7 @@ fn outcome<T>(answer: Result<T, tonic::Status>) -> Result<(), Code> {
 }
 
 /// Lists the services through reflection: `Ok` once an answer came.
-async fn reflection(channel: jsae_proto::security::Connection) -> Result<(), Code> {
+async fn reflection(channel: jsae_net::security::Connection) -> Result<(), Code> {
     use tonic_reflection::pb::v1::ServerReflectionRequest;
     use tonic_reflection::pb::v1::server_reflection_client::ServerReflectionClient;
     use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;

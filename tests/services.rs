@@ -6,12 +6,12 @@ use std::time::Duration;
 
 use jsae_actor::service::ActorExit;
 use jsae_embedder::service::EmbedderOptions;
-use jsae_learner::MetricsTable;
-use jsae_proto::ActionBatch;
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::settings::{Algo, EnvName};
-use jsae_proto::wire::pb;
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::{RunDir, Weights};
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::services::*;
+use jsae_wire::ActionBatch;
+use jsae_wire::pb;
 use tokio::net::TcpListener;
 use tonic::Code;
 
@@ -373,7 +373,7 @@ async fn health_answers_serving_and_reflection_lists_the_services() {
 
 /// A JSAE gridworld run whose embedder pre-trains on the 512 transitions of
 /// `pretrain_to_version_one`, in one pass.
-fn pretrained_on_512(name: &str) -> jsae_proto::settings::TrainConfig {
+fn pretrained_on_512(name: &str) -> jsae_settings::TrainConfig {
     let mut c = config(EnvName::Gridworld, Algo::Jsae, name);
     c.embedding.pretrain_transitions = 512;
     c.embedding.pretrain_per_action = 0;
@@ -443,8 +443,8 @@ async fn a_held_embedder_publishes_no_new_version() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
-    use jsae_proto::settings::SessionSource;
     use jsae_recommender::{Recommender, WeightSources};
+    use jsae_settings::SessionSource;
     let mut c = config(EnvName::Recommender, Algo::Jsae, "recommender-live");
     c.env_steps = 12_288;
     let r = &mut c.environment.recommender;
@@ -524,13 +524,13 @@ async fn the_recommender_follows_a_live_run_and_swaps_in_new_versions() {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_fresh_learner_learns_from_logged_purchases_before_its_first_snapshot() {
-    use jsae_proto::settings::SessionSource;
+    use jsae_settings::SessionSource;
     // the policy's outputs on a few inputs: the weights, whatever ids the record gives them
     // and whether a count prior came with them
-    let outputs = |c: &jsae_proto::settings::TrainConfig, bytes: Option<Vec<u8>>| {
+    let outputs = |c: &jsae_settings::TrainConfig, bytes: Option<Vec<u8>>| {
         let mut l = jsae_learner::Learner::for_run(c);
         if let Some(bytes) = bytes {
-            l.restore(&jsae_proto::PolicySnapshot { version: 0, bytes })
+            l.restore(&jsae_wire::PolicySnapshot { version: 0, bytes })
                 .expect("the checkpoint loads");
         }
         let d = l.policy().input_dim();

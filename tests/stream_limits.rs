@@ -5,10 +5,10 @@
 
 use std::time::Duration;
 
-use jsae_proto::settings::{Algo, EnvName};
-use jsae_proto::streams::{MAX_HEALTH_WATCHES_PER_CONNECTION, MAX_WATCHES_PER_CONNECTION};
-use jsae_proto::wire::pb;
+use jsae_net::streams::{MAX_HEALTH_WATCHES_PER_CONNECTION, MAX_WATCHES_PER_CONNECTION};
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::services::*;
+use jsae_wire::pb;
 use tonic::Code;
 use tonic_health::pb::HealthCheckRequest;
 use tonic_health::pb::health_client::HealthClient;

@@ -4,12 +4,12 @@
 //! the wire, and the learner trains on what follows with finite losses. The harness is
 //! `jsae_tests::services`.
 
-use jsae_learner::MetricsTable;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{Algo, EnvName};
-use jsae_proto::wire::pb;
-use jsae_proto::{ActionBatch, RolloutFragment};
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::services::*;
+use jsae_wire::pb;
+use jsae_wire::{ActionBatch, RolloutFragment};
 use tonic::Code;
 
 /// The fragment without its steps (what it says of its episodes kept).
@@ -132,7 +132,7 @@ async fn connections_that_never_speak_are_closed_and_the_service_answers_through
     };
     health().await;
     // every silent one is closed by the server once its time to speak has passed
-    let deadline = jsae_proto::accept::FIRST_BYTES_TIMEOUT + std::time::Duration::from_secs(5);
+    let deadline = jsae_net::accept::FIRST_BYTES_TIMEOUT + std::time::Duration::from_secs(5);
     for stream in &mut silent {
         let mut byte = [0u8; 1];
         let read = tokio::time::timeout(deadline, stream.read(&mut byte))

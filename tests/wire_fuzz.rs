@@ -8,14 +8,14 @@
 
 use std::time::{Duration, Instant};
 
-use jsae_proto::security::Security;
-use jsae_proto::settings::{Algo, EnvName, SessionSource};
-use jsae_proto::wire::pb;
-use jsae_proto::{EpisodeStat, EvalReport};
+use jsae_net::security::Security;
+use jsae_settings::{Algo, EnvName, SessionSource};
 use jsae_tests::raw_grpc::{RawClient, Shape, call};
 use jsae_tests::services::{
     bind, config, fragment, start_embedder, start_learner, stop_signal, transitions,
 };
+use jsae_wire::pb;
+use jsae_wire::{EpisodeStat, EvalReport};
 use prost::Message;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -3,11 +3,11 @@
 //! an evaluation report from an actor nobody asked, and a restarted actor reusing its id. The
 //! harness is `jsae_tests::services`.
 
-use jsae_learner::MetricsTable;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
-use jsae_proto::wire::pb;
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::{Algo, EnvName, TrainConfig};
 use jsae_tests::services::*;
+use jsae_wire::pb;
 use tonic::Code;
 
 /// The env steps of every metrics.csv row so far.

@@ -5,7 +5,7 @@
 use jsae_actor::ActorWorker;
 use jsae_learner::Learner;
 use jsae_nn::DeviceKind;
-use jsae_proto::settings::{Algo, EnvName};
+use jsae_settings::{Algo, EnvName};
 use jsae_tests::small_config;
 
 #[test]

@@ -7,7 +7,7 @@
 //! by `pacing` (rollouts per policy version, and a wait that adapts to the update time), its
 //! random play before the first embedding bounded by `random_play`, and its streams to the
 //! services kept open by `push`, which loses nothing while a service is away. The
-//! environments are `jsae-envs`, the run configuration `jsae_proto::settings`.
+//! environments are `jsae-envs`, the run configuration `jsae_settings`.
 
 #![forbid(unsafe_code)]
 

@@ -13,8 +13,8 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::task::{Context, Poll};
 
-use jsae_proto::net::{self, Backoff};
-use jsae_proto::wire::pb;
+use jsae_net::{self as net, Backoff};
+use jsae_wire::pb;
 use tokio::sync::{Mutex, mpsc};
 use tokio_stream::Stream;
 use tonic::Code;

@@ -3,12 +3,12 @@
 //! trains on transitions that reach it after the learner's last update, so its last version
 //! often arrives after the final policy; evaluated with it, the policy meets state and action
 //! embeddings it never acted in, and its mean decoded into a loop where its samples solved the
-//! task (README: When the greedy policy loops).
+//! task (docs/src/experiments/greedy-loops.md).
 
 use std::collections::VecDeque;
 use std::sync::Arc;
 
-use jsae_proto::EmbeddingSnapshot;
+use jsae_wire::EmbeddingSnapshot;
 
 /// How many versions are kept: the learner drops fragments of an older embedding than its
 /// newest, so the final policy's is one of the last few the actor saw.

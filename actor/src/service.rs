@@ -17,13 +17,13 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
-use jsae_proto::client::{self, PolicyEvent};
-use jsae_proto::net::{self, Backoff};
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::settings::{EmbedderFlag, RunFlags, TrainConfig};
-use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
-use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_net::client::{self, PolicyEvent};
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_net::{self as net, Backoff};
+use jsae_settings::{EmbedderFlag, RunFlags, TrainConfig};
 use jsae_telemetry::{ActorMetrics, ActorSample, MetricsFlag, MetricsRegistry};
+use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_wire::{MAX_MESSAGE_BYTES, pb};
 use tokio::sync::{mpsc, watch};
 use tonic::Code;
 
@@ -494,7 +494,7 @@ pub async fn run(
     exit
 }
 
-/// The actor's command line (CONTRACT.md).
+/// The actor's command line (docs/src/operations/services.md).
 #[derive(Debug, Clone, clap::Parser)]
 #[command(
     name = "jsae-actor",
@@ -519,7 +519,7 @@ pub struct ActorArgs {
     #[arg(long, env = "JSAE_ACTOR_ID")]
     pub id: Option<u64>,
     /// Record every transition this actor steps into an MCAP file (replaced if it exists;
-    /// README: Recordings).
+    /// docs/src/operations/recordings.md).
     #[arg(long, value_name = "FILE.mcap")]
     pub record: Option<PathBuf>,
     /// The run's name in the recording [default: the file's name without .mcap].
@@ -545,7 +545,9 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
             c.validate().map_err(|e| e.to_string())?;
             let security = args.security.load()?;
             security.check_url("--learner", &args.learner)?;
-            let embedder = args.embedder.for_run(&c, &security)?;
+            let embedder = args
+                .embedder
+                .for_run(&c, |flag, url| security.check_url(flag, url))?;
             Ok((c, embedder, security))
         });
     let id = args.id.unwrap_or_else(|| {

@@ -8,16 +8,16 @@ use jsae_agent::{SwapError, Weights};
 use jsae_embedder::Embedding;
 use jsae_learner::Policy;
 use jsae_nn::{BurnDevice, DeviceKind};
-use jsae_proto::{
+use jsae_record::RecordedSteps;
+use jsae_wire::{
     ActionBatch, ActionSpace, EmbeddingSnapshot, EpisodeStat, EvalReport, PolicySnapshot,
     RolloutFragment, StateBatch, StateSpace, TransitionBatch,
 };
-use jsae_record::RecordedSteps;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use jsae_envs::{ActionRef, Env, Step, make_env, step_all, step_threads};
-use jsae_proto::settings::TrainConfig;
+use jsae_settings::TrainConfig;
 
 /// Why a snapshot could not be applied.
 #[derive(Debug, thiserror::Error)]
@@ -63,7 +63,7 @@ pub struct ActorWorker {
     eval_env: Option<Box<dyn Env>>,
     current: StateBatch,
     env_steps: u64,
-    /// This worker's random nonzero number ([`jsae_proto::random_id`]): its fragments' step
+    /// This worker's random nonzero number ([`jsae_wire::random_id`]): its fragments' step
     /// claims count within it.
     incarnation: u64,
     greedy: GreedyDecode,
@@ -123,7 +123,7 @@ impl ActorWorker {
             weights,
             current,
             env_steps: 0,
-            incarnation: jsae_proto::random_id(),
+            incarnation: jsae_wire::random_id(),
             greedy: GreedyDecode::default(),
             episodes: vec![0; config.envs_per_actor],
             recording: false,

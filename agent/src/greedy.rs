@@ -18,12 +18,12 @@
 //! cost). Equivalent actions (the same displacement) split the mass into cells of a few draws
 //! each, so the estimate is noise. A greedy policy in the gridworld loops for good wherever
 //! its one action at a state runs into a wall (the state does not change), which the sampled
-//! policy escapes; evaluation reports both (README, Results).
+//! policy escapes; evaluation reports both (docs/src/experiments/greedy-loops.md).
 
 use std::collections::HashMap;
 
 use jsae_embedder::Embedding;
-use jsae_proto::ActionBatch;
+use jsae_wire::ActionBatch;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};

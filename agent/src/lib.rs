@@ -13,8 +13,8 @@ use burn::tensor::Device;
 use jsae_embedder::Embedding;
 use jsae_learner::{Policy, policy_shape};
 use jsae_nn::RecordError;
-use jsae_proto::settings::TrainConfig;
-use jsae_proto::{ActionSpace, EmbeddingSnapshot, PolicySnapshot, StateSpace};
+use jsae_settings::TrainConfig;
+use jsae_wire::{ActionSpace, EmbeddingSnapshot, PolicySnapshot, StateSpace};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

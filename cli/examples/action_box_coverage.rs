@@ -11,9 +11,9 @@
 use anyhow::{Context, Result, bail};
 use jsae_cli::plot::load_latest_embedding;
 use jsae_embedder::Embedding;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::TrainConfig;
-use jsae_proto::{ActionBatch, ActionSpace};
+use jsae_run_dir::RunDir;
+use jsae_settings::TrainConfig;
+use jsae_wire::{ActionBatch, ActionSpace};
 use rand::{Rng, SeedableRng};
 
 const SAMPLES: usize = 20_000;

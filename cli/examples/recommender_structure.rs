@@ -12,9 +12,9 @@ use anyhow::{Context, Result, bail};
 use jsae_cli::plot::load_latest_embedding;
 use jsae_envs::recsys::data::{load_sessions, split_sessions};
 use jsae_envs::recsys::model_handle;
-use jsae_proto::ActionBatch;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{EnvName, TrainConfig};
+use jsae_run_dir::RunDir;
+use jsae_settings::{EnvName, TrainConfig};
+use jsae_wire::ActionBatch;
 use std::collections::HashMap;
 
 const MIN_COUNT: u32 = 5;

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Subcommand;
-use jsae_proto::settings::{EnvName, RunFlags};
+use jsae_settings::{EnvName, RunFlags};
 
 #[derive(Subcommand, Debug)]
 pub enum Command {
@@ -52,7 +52,7 @@ pub enum Command {
     /// into one results folder, N runs at a time; finished runs are skipped, so a stopped
     /// sweep goes on when started again. Then `jsae report` the folder.
     Sweep {
-        /// The sweep file (TOML; README: Experiments).
+        /// The sweep file (TOML; docs/src/experiments.md).
         file: PathBuf,
         /// Runs at a time [default: the machine's cores].
         #[arg(long)]
@@ -145,7 +145,7 @@ pub fn run(command: Command) -> ExitCode {
         Command::SubmitSessions(args) => return crate::recommender_client::submit_main(args),
         _ => {}
     }
-    jsae_proto::logging::init_logging();
+    jsae_net::logging::init_logging();
     match command {
         Command::Train(args) => crate::train_command::main(&args),
         Command::Bench {

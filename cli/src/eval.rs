@@ -7,17 +7,17 @@ use std::process::ExitCode;
 use clap::Args;
 use jsae_actor::worker::ActorWorker;
 use jsae_agent::greedy::GreedyDecode;
-use jsae_learner::EvalStats;
-use jsae_proto::PolicySnapshot;
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::settings::TrainConfig;
+use jsae_run_dir::EvalStats;
+use jsae_run_dir::{RunDir, Weights};
+use jsae_settings::TrainConfig;
+use jsae_wire::PolicySnapshot;
 
 /// How the deterministic policy picks a discrete action through f.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum DecodeArg {
     /// f of the mean embedding (the default everywhere).
     Mean,
-    /// The policy's most likely action, from fixed draws (slower; README: Results).
+    /// The policy's most likely action, from fixed draws (slower; docs/src/experiments/greedy-loops.md).
     Mode,
 }
 
@@ -92,7 +92,7 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
                 })?
         }
     };
-    let bytes = jsae_proto::run_dir::read_weights(&policy_path)
+    let bytes = jsae_run_dir::read_weights(&policy_path)
         .map_err(|e| (2, format!("{}: {e}", policy_path.display())))?;
     let mut worker = ActorWorker::new(&config, 0, config.device).map_err(|e| (1, e.to_string()))?;
     if config.algo.representation().needs_embedder() {

@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 
-use jsae_proto::security::SecurityFlags;
+use jsae_net::security::SecurityFlags;
 use tonic_health::pb::health_check_response::ServingStatus;
 use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
 

@@ -14,10 +14,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, mpsc};
 use std::time::Duration;
 
-use jsae_learner::{MetricsTable, Summary};
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::security::SecurityFlags;
-use jsae_proto::settings::TrainConfig;
+use jsae_net::security::SecurityFlags;
+use jsae_run_dir::RunDir;
+use jsae_run_dir::{MetricsTable, Summary};
+use jsae_settings::TrainConfig;
 
 use crate::log_echo::LogEcho;
 use crate::plot;
@@ -73,11 +73,11 @@ impl Service {
             .args(args)
             .envs(children.security.iter().map(|(k, v)| (k, v)))
             .env(
-                jsae_learner::COMMAND_LINE_ENV,
+                jsae_run_dir::COMMAND_LINE_ENV,
                 serde_json::to_string(&typed).unwrap_or_default(),
             )
             // one address for three processes cannot work: metrics only by hand or in
-            // containers (README: Prometheus)
+            // containers (docs/src/operations/prometheus.md)
             .env_remove("JSAE_METRICS_LISTEN")
             .stdin(Stdio::null())
             .stdout(Stdio::piped())
@@ -127,7 +127,7 @@ impl Service {
 }
 
 fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
-    let format = jsae_proto::logging::chosen_log_format();
+    let format = jsae_net::logging::chosen_log_format();
     let log_format = format.map(|f| ["--log-format".to_string(), f.as_str().to_string()]);
     log_format
         .into_iter()

@@ -6,7 +6,7 @@ use std::fmt::Display;
 use std::future::Future;
 use std::process::ExitCode;
 
-use jsae_proto::security::{Connection, Security};
+use jsae_net::security::{Connection, Security};
 
 /// `host:port` or a full `http://host:port` URL, as a URL (`https://` for a bare address
 /// where `security` trusts a CA).
@@ -28,7 +28,7 @@ pub fn connect(addr: &str, security: &Security) -> Result<(Connection, String), 
 
 /// A refused or failed call as a one-line reason.
 pub fn reason(url: &str, status: &tonic::Status) -> String {
-    format!("{url}: {}", jsae_proto::net::status_reason(status))
+    format!("{url}: {}", jsae_net::status_reason(status))
 }
 
 /// Runs `call` to completion: exit 0 with its answer on stdout, 1 with `name: reason` on
@@ -62,7 +62,7 @@ mod tests {
     fn a_reason_names_every_cause() {
         let inner = std::io::Error::new(std::io::ErrorKind::ConnectionRefused, "refused");
         let outer = std::io::Error::other(inner);
-        assert_eq!(jsae_proto::net::error_chain(&outer), "refused");
+        assert_eq!(jsae_net::error_chain(&outer), "refused");
         #[derive(Debug)]
         struct Top(std::io::Error);
         impl std::fmt::Display for Top {
@@ -80,14 +80,14 @@ mod tests {
             "Connection refused",
         ));
         assert_eq!(
-            jsae_proto::net::error_chain(&top),
+            jsae_net::error_chain(&top),
             "transport error: Connection refused"
         );
     }
 
     #[test]
     fn bare_addresses_get_a_scheme() {
-        let plain = jsae_proto::security::Security::default();
+        let plain = jsae_net::security::Security::default();
         assert_eq!(super::url("127.0.0.1:1", &plain), "http://127.0.0.1:1");
         assert_eq!(super::url("http://h:2", &plain), "http://h:2");
     }

@@ -4,8 +4,8 @@
 
 use std::io::BufRead;
 
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::wire::pb;
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_wire::pb;
 
 use jsae_envs::recsys::Session;
 use jsae_recommender::{MAX_CALL_BYTES, MAX_SESSIONS_PER_CALL};
@@ -98,7 +98,7 @@ pub fn read_sessions(reader: impl BufRead, name: &str) -> Result<Vec<Session>, S
 fn calls(sessions: Vec<Session>) -> Vec<Vec<pb::Session>> {
     let mut calls: Vec<Vec<pb::Session>> = Vec::new();
     let mut bytes = 0;
-    for s in sessions.into_iter().map(pb::Session::from) {
+    for s in sessions.into_iter().map(jsae_recommender::session_to_wire) {
         let n = prost::Message::encoded_len(&s) as u64;
         match calls.last_mut() {
             Some(call)
@@ -128,8 +128,8 @@ pub async fn submit(
 ) -> Result<serde_json::Value, String> {
     let (channel, url) = crate::oneshot::connect(addr, security)?;
     let mut client = pb::recommender_client::RecommenderClient::new(channel)
-        .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+        .max_decoding_message_size(jsae_wire::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(jsae_wire::MAX_MESSAGE_BYTES);
     let mut total = pb::SubmitSummary::default();
     let mut offset = 0u64;
     for call in calls(sessions) {

@@ -8,11 +8,11 @@ use std::process::ExitCode;
 
 use clap::Args;
 use jsae_envs::recsys::held_out_sessions;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{EnvName, TrainConfig};
 use jsae_recommender::baseline::{PolicyChoice, Reference, baselines};
 use jsae_recommender::offline::{self, RankingMetrics};
 use jsae_recommender::{Recommender, load_run};
+use jsae_run_dir::RunDir;
+use jsae_settings::{EnvName, TrainConfig};
 use serde::Serialize;
 
 /// `jsae recommender-eval` flags.
@@ -85,7 +85,7 @@ fn evaluate(a: &RecommenderEvalArgs) -> Result<Output, (u8, String)> {
             .find(|b| b.policy == name)
             .map_or(f64::NAN, |b| b.return_mean)
     };
-    let rank_err = |e: jsae_proto::RpcError| (1, e.to_string());
+    let rank_err = |e: jsae_wire::RpcError| (1, e.to_string());
     let mut policies = vec![PolicyRow {
         ranking: offline::score(&learned, &model, &queries, a.k, "learned").map_err(rank_err)?,
         return_mean: simulated,

@@ -1,6 +1,6 @@
 //! `jsae env-replay`: replays a recorded initial state and action sequence through a MuJoCo
 //! environment and writes what each step returned, to check it against Gymnasium value for
-//! value (CONTRACT.md). Input: a line `{"qpos": [...], "qvel": [...]}`, then one line
+//! value (docs/src/environments.md). Input: a line `{"qpos": [...], "qvel": [...]}`, then one line
 //! `{"action": [...]}` per step; output: one line `{"obs": [...], "reward": r,
 //! "terminated": b}` per step (every input step is replayed, as Gymnasium would step on
 //! after a terminal one).
@@ -71,8 +71,8 @@ pub fn replay(
     );
     let (nq, nv) = mj.state_sizes();
     let nu = match jsae_envs::Env::action_space(&mj) {
-        jsae_proto::ActionSpace::Continuous { dim, .. } => *dim,
-        jsae_proto::ActionSpace::Discrete { .. } => 0,
+        jsae_wire::ActionSpace::Continuous { dim, .. } => *dim,
+        jsae_wire::ActionSpace::Discrete { .. } => 0,
     };
     let bad = |line: usize, reason: String| ReplayError::Input { line, reason };
     let mut lines = input.lines().enumerate().filter(|(_, l)| match l {

@@ -7,17 +7,16 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use jsae_embedder::{EmbedderTrainer, pretrain_from_recording};
-use jsae_learner::{
-    Ingested, Learner, MetricsSink, ResumePoint, RunMetrics, Summary, UPDATE_COLUMNS,
-    update_scalars,
-};
-use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
-use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_learner::{Ingested, Learner, UPDATE_COLUMNS, update_scalars};
 use jsae_record::{Recorder, RecordingInfo};
+use jsae_run_dir::{
+    LatestCheckpoint, MetricsSink, ResumePoint, RunDir, RunMetrics, Summary, Weights,
+};
+use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
 
 use crate::plot;
 use crate::progress::Progress;
-use jsae_proto::settings::TrainConfig;
+use jsae_settings::TrainConfig;
 
 use jsae_actor::worker::{ActorWorker, WorkerError};
 
@@ -26,7 +25,7 @@ use jsae_actor::worker::{ActorWorker, WorkerError};
 pub enum TrainError {
     /// Invalid configuration.
     #[error(transparent)]
-    Config(#[from] jsae_proto::settings::ConfigError),
+    Config(#[from] jsae_settings::ConfigError),
     /// The run directory could not be written.
     #[error("run directory {path}: {source}")]
     Io {
@@ -84,7 +83,7 @@ pub struct RunOptions {
     pub resume: bool,
     /// The token and TLS files the service processes are started with (separate processes
     /// only: in one process nothing travels over the network).
-    pub security: jsae_proto::security::SecurityFlags,
+    pub security: jsae_net::security::SecurityFlags,
 }
 
 impl RunOptions {
@@ -175,7 +174,7 @@ pub fn train_one_process_with(
             .map_err(|e| TrainError::Service(format!("--resume policy: {e}")))?;
         // the checkpoint's env steps and wall time, else the last metrics row's
         match wall {
-            Some(wall) => started = jsae_learner::metrics::run_started(wall),
+            Some(wall) => started = jsae_run_dir::run_started(wall),
             None => learner.count_steps_from(point.env_steps),
         }
         if let Some(emb) = embedder.as_mut() {
@@ -198,7 +197,7 @@ pub fn train_one_process_with(
             point.env_steps,
             learner.version()
         ));
-    } else if let Some(source) = config.init_source()? {
+    } else if let Some(source) = jsae_run_dir::init_source(config)? {
         learner
             .warm_start(&source.policy)
             .map_err(|e| TrainError::Service(format!("--init-from policy: {e}")))?;

@@ -6,10 +6,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Args;
+use jsae_net::security::SecurityFlags;
 use jsae_nn::DeviceKind;
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::security::SecurityFlags;
-use jsae_proto::settings::{RunFlags, TrainConfig};
+use jsae_run_dir::{RunDir, Weights};
+use jsae_settings::{RunFlags, TrainConfig};
 
 use crate::launch;
 use crate::progress::Progress;
@@ -34,7 +34,7 @@ pub struct TrainArgs {
     #[arg(long, env = "JSAE_OUT")]
     pub out: Option<PathBuf>,
     /// burn device [default: flex].
-    #[arg(long, value_enum, env = "JSAE_DEVICE")]
+    #[arg(long, env = "JSAE_DEVICE", value_parser = jsae_settings::device_parser())]
     pub device: Option<DeviceKind>,
     /// Deterministic evaluation episodes at the end [default: the settings file's, else 20;
     /// 200 for the recommender].
@@ -176,7 +176,7 @@ fn resume_config(a: &TrainArgs, dir: &std::path::Path) -> Result<TrainConfig, St
         ));
     }
     if let Ok(text) = std::fs::read_to_string(run.summary_json()) {
-        let done = serde_json::from_str::<jsae_learner::Summary>(&text)
+        let done = serde_json::from_str::<jsae_run_dir::Summary>(&text)
             .map(|s| s.env_steps)
             .map_err(|e| format!("{}: {e}", run.summary_json().display()))?;
         if c.env_steps <= done {
@@ -215,7 +215,7 @@ fn build_config(a: &TrainArgs) -> Result<TrainConfig, String> {
     }
     c.validate().map_err(|e| e.to_string())?;
     // the warm start's run is read and checked before any service starts
-    c.init_source().map_err(|e| e.to_string())?;
+    jsae_run_dir::init_source(&c).map_err(|e| e.to_string())?;
     Ok(c)
 }
 

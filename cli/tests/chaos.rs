@@ -95,7 +95,7 @@ fn all_stopped(tasks: &Path) -> bool {
 /// The version and training state of the policy checkpoint, as a restarted learner logs them.
 fn saved_state(checkpoints: &Path) -> Option<String> {
     let bytes = std::fs::read(checkpoints.join("policy-latest.ckpt")).ok()?;
-    let saved = jsae_proto::run_dir::LatestCheckpoint::decode(&bytes).ok()?;
+    let saved = jsae_run_dir::LatestCheckpoint::decode(&bytes).ok()?;
     Some(format!(
         "version {}, training state {} bytes (crc32 {:08x})",
         saved.version,

@@ -1,6 +1,6 @@
 //! The Recommender service from another language: a short JSAE run on synthetic sessions,
 //! then `jsae recommender --run DIR` serves its policy and a Python grpcio client (stubs
-//! generated from proto/ at test time, scripts/python/recommender_client.py) submits good
+//! generated from wire/proto/ at test time, scripts/python/recommender_client.py) submits good
 //! and malformed sessions and asks for recommendations, good and bad. Then the session
 //! store holds exactly the good sessions, and once the model is refreshed from it a
 //! submitted new item is known to `Recommend`. The command-line clients (`jsae recommend`,
@@ -12,7 +12,7 @@ use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::{python_json, start_recommender};
-use jsae_proto::wire::pb;
+use jsae_wire::pb;
 
 const SETTINGS: &str = r#"
 env = "recommender"
@@ -267,7 +267,7 @@ fn the_reference_policies_are_served_to_a_python_client() {
     std::fs::create_dir_all(&dir).expect("temp dir");
     let settings = dir.join("settings.toml");
     std::fs::write(&settings, SETTINGS).expect("settings");
-    let config = jsae_proto::settings::TrainConfig::from_layers(None, None, Some(&settings))
+    let config = jsae_settings::TrainConfig::from_layers(None, None, Some(&settings))
         .expect("settings parse");
     let ask = |addr: &str, history: &[&str]| -> Vec<String> {
         let answer = python_json(

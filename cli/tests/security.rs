@@ -10,7 +10,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use common::{Server, free_port, python_json, start_recommender};
-use jsae_proto::security::test_certs::TestPki;
+use jsae_net::security::test_certs::TestPki;
 
 /// A deployment's token (32 hex characters).
 const TOKEN: &str = "3f9a0c5e7b1d2f4a6c8e0b2d4f6a8c0e";

@@ -2,8 +2,8 @@
 //! the g-table, or the decoder MLP) for action embeddings.
 
 use burn::tensor::Device;
-use jsae_proto::settings::Representation;
-use jsae_proto::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateSpace};
+use jsae_settings::Representation;
+use jsae_wire::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateSpace};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

@@ -11,7 +11,7 @@
 //! trait every trained representation implements), `structure` (how much of the action
 //! geometry g holds), `trainer` (pre-training, continuous
 //! updates, versioned snapshots), `embedding` (a snapshot loaded for acting), `service` (the gRPC embedder service). The settings
-//! are `jsae_proto::settings::EmbeddingConfig`.
+//! are `jsae_settings::EmbeddingConfig`.
 
 #![forbid(unsafe_code)]
 
@@ -27,7 +27,7 @@ mod structure;
 mod trainer;
 
 pub use embedding::Embedding;
-pub use jsae_proto::settings::EmbeddingConfig;
+pub use jsae_settings::EmbeddingConfig;
 pub use model::{EmbeddingModel, EmbeddingNet, cross_entropy};
 pub use nearest::NearestAction;
 pub use pretrain_progress::{PRETRAIN_PHASE, PretrainProgress};

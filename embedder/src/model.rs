@@ -11,13 +11,13 @@
 use burn::module::{Module, Param};
 use burn::nn::Linear;
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::EmbeddingConfig;
 use jsae_nn::{self as nn, Mlp, MlpConfig, ObsNorm};
-use jsae_proto::settings::Representation;
+use jsae_settings::Representation;
 
 mod baselines;
 mod transfer;

@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use jsae_proto::EmbeddingSnapshot;
+use jsae_wire::EmbeddingSnapshot;
 
 use crate::representation::RepresentationModel;
 use crate::trainer::EmbedderTrainer;

@@ -2,7 +2,7 @@
 //! side ([`Replay::sample`], [`Replay::window`]) are separate: the embedder's ingest path
 //! only pushes, its trainer only samples.
 
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 

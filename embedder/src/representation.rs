@@ -4,11 +4,11 @@
 //! behind [`RepresentationModel`]. [`EmbeddingModel`] implements it for JSAE's phi/g/T/f and,
 //! with other heads and losses, for the AE and RA baselines. Which questions a
 //! representation answers for the rest of the system (does it embed states? does f decode
-//! actions?) is `jsae_proto::settings::Representation`.
+//! actions?) is `jsae_settings::Representation`.
 
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use jsae_nn::RecordError;
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_wire::{ActionSpace, StateBatch, StateSpace};
 
 use crate::EmbeddingModel;
 use crate::replay::Minibatch;

@@ -12,14 +12,14 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
-use jsae_proto::net;
-use jsae_proto::run_dir::{Checkpoints, Weights};
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::settings::{ListenFlag, RunFlags, TrainConfig};
-use jsae_proto::streams::StreamLimit;
-use jsae_proto::wire::{self, MAX_MESSAGE_BYTES, pb};
-use jsae_proto::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
+use jsae_net as net;
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_net::streams::StreamLimit;
+use jsae_run_dir::{Checkpoints, Weights};
+use jsae_settings::{ListenFlag, RunFlags, TrainConfig};
 use jsae_telemetry::{EmbedderMetrics, EmbedderSample, MetricsFlag, MetricsRegistry};
+use jsae_wire::{self as wire, MAX_MESSAGE_BYTES, pb};
+use jsae_wire::{ActionSpace, EmbeddingSnapshot, RpcError, StateSpace, TransitionBatch};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
@@ -192,7 +192,9 @@ fn training_loop(
             ),
         }
     }
-    if !resumed && let Some(source) = config.init_source().map_err(|e| e.to_string())? {
+    if !resumed
+        && let Some(source) = jsae_run_dir::init_source(config).map_err(|e| e.to_string())?
+    {
         let parts = trainer.warm_start(&source)?;
         tracing::info!(
             "warm-started from {}: {}",
@@ -343,7 +345,7 @@ pub async fn serve(
     Ok(())
 }
 
-/// The embedder's command line (CONTRACT.md).
+/// The embedder's command line (docs/src/operations/services.md).
 #[derive(Debug, Clone, clap::Parser)]
 #[command(
     name = "jsae-embedder",

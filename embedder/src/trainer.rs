@@ -5,8 +5,9 @@
 
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, AdamWConfig, ModuleOptimizer};
-use jsae_proto::settings::{InitSource, Representation};
-use jsae_proto::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
+use jsae_run_dir::InitSource;
+use jsae_settings::Representation;
+use jsae_wire::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
@@ -147,7 +148,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
     }
 
     /// Measures every snapshot's action embeddings against each action's true displacement
-    /// (`jsae_proto::settings::EnvName::action_motions`); None leaves it unmeasured.
+    /// (`jsae_settings::EnvName::action_motions`); None leaves it unmeasured.
     pub fn with_action_motions(mut self, motions: Option<Vec<[f64; 2]>>) -> Self {
         self.structure = motions.and_then(ActionStructure::new);
         self
@@ -342,7 +343,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
 mod tests {
     use super::*;
     use crate::replay::Minibatch;
-    use jsae_proto::{ActionBatch, StateBatch};
+    use jsae_wire::{ActionBatch, StateBatch};
     use rand::Rng;
 
     /// A fixed dataset of a deterministic ring: s' = (s + a) mod 20.

@@ -5,8 +5,9 @@
 
 use jsae_embedder::{EmbedderTrainer, EmbeddingConfig, NearestAction, replay::Minibatch};
 use jsae_nn::{self as nn, DeviceKind};
-use jsae_proto::settings::{Algo, EnvName, InitSource, Representation, TrainConfig};
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
+use jsae_run_dir::InitSource;
+use jsae_settings::{Algo, EnvName, Representation, TrainConfig};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -10,8 +10,8 @@
 //! `goal_reward` when a sub-step's segment touches the goal (the episode terminates there).
 //! The time limit `max_steps` truncates.
 
-use jsae_proto::settings::GridworldConfig;
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_env_spec::GridworldConfig;
+use jsae_spaces::{ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
 use super::geometry::Rect;
@@ -28,7 +28,7 @@ const START: [f64; 2] = [0.3, 0.1];
 
 /// Motion of every action (the rule lives with the settings, so services that never step
 /// the gridworld measure embeddings against the same motions).
-pub use jsae_proto::settings::gridworld_action_motions as action_motions;
+pub use jsae_env_spec::gridworld_action_motions as action_motions;
 
 /// Bin of a coordinate in `[0, 1]`: `min(floor(bins * c), bins - 1)`, never wrapping.
 pub fn bin(c: f64, bins: u32) -> u32 {

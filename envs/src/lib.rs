@@ -5,7 +5,7 @@
 //! Layout: the [`Env`] trait, [`make_env`] and vectorised stepping ([`step_all`]) here;
 //! `gridworld` (continuous and discrete, with `geometry` for its walls), `slotmachine`,
 //! `mujoco` (HalfCheetah and Ant, equal to Gymnasium v5), and `recsys` (the recommender's
-//! sessions, session store, n-gram MDP and environment). Depends on `jsae-proto` only.
+//! sessions, session store, n-gram MDP and environment). Depends on `jsae-spaces` and `jsae-env-spec` only (no networking, no models).
 
 // One unsafe call (MuJoCo's global log configuration, mujoco.rs) is allowed locally.
 #![deny(unsafe_code)]
@@ -16,12 +16,12 @@ pub mod mujoco;
 pub mod recsys;
 pub mod slotmachine;
 
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use jsae_spaces::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
 pub use crate::recsys::{RecommenderEnv, RecsysError};
 pub use gridworld::Gridworld;
-pub use jsae_proto::settings::{
+pub use jsae_env_spec::{
     EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
 };
 pub use mujoco::{MujocoEnv, Robot};
@@ -146,7 +146,7 @@ mod tests {
         config.gridworld.actuators = 5;
         config.gridworld.bins = 7;
         config.slotmachine.bins = 3;
-        config.recommender.source = jsae_proto::settings::SessionSource::Synthetic;
+        config.recommender.source = jsae_env_spec::SessionSource::Synthetic;
         config.recommender.top_n = 50;
         config.recommender.history = 3;
         for factored in [false, true] {

@@ -11,8 +11,8 @@
 
 use std::sync::{Arc, OnceLock};
 
-use jsae_proto::settings::MujocoConfig;
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_env_spec::MujocoConfig;
+use jsae_spaces::{ActionSpace, StateBatch, StateSpace};
 use mujoco_rs::prelude::{MjData, MjModel};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;

@@ -7,8 +7,8 @@
 //! least `threshold` reels, count x value. Reels start at random positions; the episode is
 //! truncated after `horizon` steps.
 
-use jsae_proto::settings::SlotmachineConfig;
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_env_spec::SlotmachineConfig;
+use jsae_spaces::{ActionSpace, StateBatch, StateSpace};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 

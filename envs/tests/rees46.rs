@@ -6,9 +6,9 @@
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use jsae_env_spec::{GroupBy, RecommenderConfig, SessionSource};
 use jsae_envs::recsys::rees46::{self, ReadStats};
 use jsae_envs::recsys::{NgramModel, Purchase, Session};
-use jsae_proto::settings::{GroupBy, RecommenderConfig, SessionSource};
 
 const HEADER: &str =
     "event_time,event_type,product_id,category_id,category_code,brand,price,user_id,user_session";

@@ -26,7 +26,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use jsae_proto::settings::{Algo, EnvName};
+use jsae_settings::{Algo, EnvName};
 use serde::Deserialize;
 
 /// Why a sweep file was refused.

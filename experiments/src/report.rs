@@ -6,7 +6,7 @@ use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
-use jsae_learner::MetricsTable;
+use jsae_run_dir::MetricsTable;
 use serde::Deserialize;
 
 use crate::figures::{self, Band, Figure};

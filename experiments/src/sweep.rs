@@ -13,8 +13,8 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::TrainConfig;
+use jsae_run_dir::RunDir;
+use jsae_settings::TrainConfig;
 
 use crate::grid::{Grid, RunSpec};
 
@@ -339,7 +339,7 @@ fn train_one(exe: &Path, paths: &RunPaths, threads: usize, stop: &AtomicBool) ->
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jsae_proto::settings::{Algo, EnvName};
+    use jsae_settings::{Algo, EnvName};
 
     #[test]
     fn run_files_live_beside_each_other() {

@@ -13,31 +13,25 @@
 //! (named scalars into a sink: metrics.csv), `tensorboard` (the same scalars as TensorBoard event
 //! files; `RunMetrics` writes both), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests), `visits` (the exploration
 //! bonus's visit counts over all actors). The settings are
-//! `jsae_proto::settings::PpoConfig`.
+//! `jsae_settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
 
 pub mod fused;
 pub mod gae;
-pub mod metrics;
 pub mod normalise;
 mod policy;
 mod ppo;
 pub mod prior;
-mod record;
 pub mod service;
 pub mod synthetic;
-pub mod tensorboard;
+mod update_row;
 pub mod visits;
 
-pub use jsae_proto::settings::{PpoConfig, UpdatePath};
-pub use metrics::{
-    CsvMetrics, MetricsSink, MetricsTable, ResumePoint, Scalar, UPDATE_COLUMNS, update_scalars,
-};
+pub use jsae_settings::{PpoConfig, UpdatePath};
 pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
 pub use ppo::{
     ClaimWentBack, Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport,
     StateError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,
 };
-pub use record::{COMMAND_LINE_ENV, EvalStats, RunMeta, Summary};
-pub use tensorboard::{RunMetrics, TensorBoardMetrics};
+pub use update_row::{UPDATE_COLUMNS, update_scalars};

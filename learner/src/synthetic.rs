@@ -1,7 +1,7 @@
 //! Rollout fragments of random data for a policy's shapes: what benchmarks and tests feed a
 //! learner when the update's cost or its equality across paths is measured, not learning.
 
-use jsae_proto::{ActionBatch, RolloutFragment};
+use jsae_wire::{ActionBatch, RolloutFragment};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 

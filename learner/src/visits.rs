@@ -3,11 +3,11 @@
 //! learner counts the visits of all actors and adds `bonus / sqrt(n)` to each step's reward
 //! before GAE. With counts per actor, as the actors kept them before, a state's count grew N
 //! times slower with N actors, so its bonus was sqrt(N) times larger at the same env step and
-//! differed from one actor to the next (README: The loop at 500k steps).
+//! differed from one actor to the next (docs/src/experiments/loop-500k-actors.md).
 
 use std::collections::HashMap;
 
-use jsae_proto::RolloutFragment;
+use jsae_wire::RolloutFragment;
 
 /// The most distinct states counted (some 100 MB of counts). The keys come from the wire, so
 /// an actor sending ever new ones must not grow the learner without bound: past the limit a
@@ -76,7 +76,7 @@ impl VisitBonus {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jsae_proto::ActionBatch;
+    use jsae_wire::ActionBatch;
 
     fn fragment(actor: u64, keys: Vec<u64>) -> RolloutFragment {
         let n = keys.len();

@@ -20,8 +20,8 @@ use std::collections::HashMap;
 
 use jsae_envs::recsys::{NgramModel, RecommenderEnv};
 use jsae_envs::{ActionRef, Env};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_recommender::baseline::{Reference, returns};
+use jsae_settings::{Algo, EnvName, TrainConfig};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

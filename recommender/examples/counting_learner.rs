@@ -21,9 +21,9 @@ use std::hash::Hash;
 
 use jsae_envs::recsys::RecommenderEnv;
 use jsae_envs::{ActionRef, Env};
-use jsae_proto::StateBatch;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_recommender::baseline::{Reference, returns};
+use jsae_settings::{Algo, EnvName, TrainConfig};
+use jsae_wire::StateBatch;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

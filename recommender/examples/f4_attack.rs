@@ -22,8 +22,8 @@ use std::process::{Child, Command, Stdio};
 use std::time::{Duration, Instant};
 
 use clap::Parser;
-use jsae_proto::wire::pb;
 use jsae_recommender::{MAX_CALL_BYTES, MAX_CONCURRENT_CALLS, MAX_REQUEST_BYTES, RecommenderArgs};
+use jsae_wire::pb;
 use tokio_stream::wrappers::ReceiverStream;
 
 type Client = pb::recommender_client::RecommenderClient<tonic::transport::Channel>;

@@ -11,8 +11,8 @@
 use std::collections::HashMap;
 
 use jsae_envs::recsys::{NgramModel, RecommenderEnv};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
 use jsae_recommender::baseline::{Reference, returns};
+use jsae_settings::{Algo, EnvName, TrainConfig};
 
 /// The greedy rule's expected reward in a context, cached.
 struct OneStep<'a> {

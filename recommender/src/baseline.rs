@@ -5,7 +5,7 @@
 //! seeds, beside uniformly random recommendations), the service's `--policy`, and the offline
 //! evaluation's rankings.
 
-use jsae_proto::settings::TrainConfig;
+use jsae_settings::TrainConfig;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
@@ -163,7 +163,7 @@ pub fn baselines(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jsae_proto::settings::{Algo, EnvName, SessionSource};
+    use jsae_settings::{Algo, EnvName, SessionSource};
 
     #[test]
     fn reading_the_model_beats_random_and_both_repeat_for_a_seed() {

@@ -3,11 +3,11 @@
 use std::path::PathBuf;
 use std::sync::Arc;
 
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_net::{self as net, Failure};
 use jsae_nn::DeviceKind;
-use jsae_proto::net::{self, Failure};
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::settings::{EmbedderFlag, EnvName, RunFlags, TrainConfig};
+use jsae_run_dir::RunDir;
+use jsae_settings::{EmbedderFlag, EnvName, RunFlags, TrainConfig};
 
 use crate::baseline::PolicyChoice;
 use crate::grpc::serve;
@@ -44,7 +44,7 @@ pub struct RecommenderArgs {
     #[arg(long, value_enum, env = "JSAE_POLICY", default_value = "learned")]
     pub policy: PolicyChoice,
     /// burn device [default: flex].
-    #[arg(long, value_enum, env = "JSAE_DEVICE")]
+    #[arg(long, env = "JSAE_DEVICE", value_parser = jsae_settings::device_parser())]
     pub device: Option<DeviceKind>,
     /// With `--run`: wait for a run directory that has no config.toml yet (a run still
     /// starting) instead of exiting with code 2.
@@ -118,7 +118,7 @@ fn config_of(args: &RecommenderArgs, security: &Security) -> Result<TrainConfig,
     if let Some(url) = &args.learner {
         security.check_url("--learner", url)?;
         args.embedder
-            .for_run(&c, security)
+            .for_run(&c, |flag, url| security.check_url(flag, url))
             .map_err(|e| format!("{e} with --learner"))?;
     }
     Ok(c)

@@ -4,9 +4,9 @@
 
 use std::sync::Arc;
 
-use jsae_proto::net;
-use jsae_proto::security::Security;
-use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
+use jsae_net as net;
+use jsae_net::security::Security;
+use jsae_wire::{MAX_MESSAGE_BYTES, pb};
 use tokio::net::TcpListener;
 use tonic::{Request, Response, Status, Streaming};
 

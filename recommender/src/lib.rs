@@ -1,4 +1,4 @@
-//! The Recommender gRPC service (CONTRACT.md) and the reference recommenders.
+//! The Recommender gRPC service (docs/src/recommender.md) and the reference recommenders.
 //!
 //! `Recommend` answers the k best items for a purchase history from the current policy,
 //! `SubmitSessions` validates sessions and commits the good ones of a call to the session
@@ -11,7 +11,8 @@
 //! or loaded from a run directory's checkpoints), `cli` (`jsae recommender`'s flags and main),
 //! `baseline` (the reference policies: popular, most likely next item; with random, their
 //! returns), `offline` (hit rate@k and NDCG@k on held-out sessions), `logs` (the logged
-//! purchases a fresh learner's policy learns from).
+//! purchases a fresh learner's policy learns from), `session_wire` (sessions to and from
+//! their gRPC form).
 //! The environment, data and session store are `jsae_envs::recsys`.
 
 #![forbid(unsafe_code)]
@@ -22,6 +23,7 @@ pub mod grpc;
 pub mod logs;
 pub mod offline;
 pub mod scoring;
+mod session_wire;
 pub mod sources;
 pub mod submit;
 
@@ -29,6 +31,7 @@ pub use cli::{RecommenderArgs, main};
 pub use grpc::{RecommenderService, serve};
 pub use logs::logged_purchases;
 pub use scoring::{MAX_HISTORY, Recommendation, Recommender};
+pub use session_wire::{session_from_wire, session_to_wire};
 pub use sources::{WeightSources, load_run};
 pub use submit::{
     MAX_BYTES_IN_FLIGHT, MAX_CALL_BYTES, MAX_CALLS_PER_CONNECTION, MAX_CONCURRENT_CALLS,

@@ -6,7 +6,7 @@
 use jsae_envs::Env;
 use jsae_envs::recsys::RecommenderEnv;
 use jsae_learner::LoggedPurchases;
-use jsae_proto::settings::{EnvName, TrainConfig};
+use jsae_settings::{EnvName, TrainConfig};
 
 /// The run's logged purchases where its settings ask for them; None where they do not.
 ///

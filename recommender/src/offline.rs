@@ -80,7 +80,7 @@ pub fn score(
     queries: &Queries,
     k: usize,
     name: &str,
-) -> Result<RankingMetrics, jsae_proto::RpcError> {
+) -> Result<RankingMetrics, jsae_wire::RpcError> {
     let (mut hits, mut gain) = (0usize, 0.0);
     let mut shown = vec![false; model.catalogue().len()];
     for (state, target) in &queries.pairs {
@@ -121,7 +121,7 @@ mod tests {
     use super::*;
     use crate::baseline::PolicyChoice;
     use jsae_envs::recsys::held_out_sessions;
-    use jsae_proto::settings::{Algo, EnvName, SessionSource, TrainConfig};
+    use jsae_settings::{Algo, EnvName, SessionSource, TrainConfig};
 
     #[test]
     fn reading_the_model_ranks_held_out_purchases_better_than_popularity_and_chance() {

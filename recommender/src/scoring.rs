@@ -19,8 +19,8 @@ use jsae_envs::recsys::staging::{StagedSessions, StagingArea};
 use jsae_envs::recsys::store::{CommitOutcome, SessionStore};
 use jsae_envs::recsys::{ModelHandle, NgramModel, RecsysError, model_handle};
 use jsae_nn::{BurnDevice, DeviceKind};
-use jsae_proto::settings::{EnvName, TrainConfig};
-use jsae_proto::{EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace};
+use jsae_settings::{EnvName, TrainConfig};
+use jsae_wire::{EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace};
 
 use crate::baseline::PolicyChoice;
 

@@ -5,11 +5,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use jsae_proto::client::{self, PolicyEvent};
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::security::Security;
-use jsae_proto::wire::pb;
-use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_net::client::{self, PolicyEvent};
+use jsae_net::security::Security;
+use jsae_run_dir::{RunDir, Weights};
+use jsae_wire::pb;
+use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
 
 use crate::scoring::Recommender;
 
@@ -32,8 +32,7 @@ pub struct WeightSources {
 pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
     let ckpt = RunDir::new(dir).checkpoints();
     let read = |path: &Path| {
-        jsae_proto::run_dir::read_weights(path)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
+        jsae_run_dir::read_weights(path).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))
     };
     let mut changed = false;
     if rec.config().algo.representation().needs_embedder() {

@@ -20,9 +20,9 @@ use std::time::Duration;
 
 use jsae_envs::recsys::sessions::{Session, check_session};
 use jsae_envs::recsys::staging::{Staged, StagedSessions};
-use jsae_proto::RpcError;
-use jsae_proto::streams::{Cap, ConnectionGuard, CountedPlace, PerConnection};
-use jsae_proto::wire::pb;
+use jsae_net::streams::{Cap, ConnectionGuard, CountedPlace, PerConnection};
+use jsae_wire::RpcError;
+use jsae_wire::pb;
 use prost::Message;
 use tokio::sync::{OwnedSemaphorePermit, Semaphore};
 use tonic::{Code, Status, Streaming};
@@ -207,9 +207,9 @@ fn nothing_stored(status: impl Into<Status>) -> Status {
 }
 
 /// The error of a stream that broke: a message over [`MAX_REQUEST_BYTES`] is
-/// RESOURCE_EXHAUSTED ([`jsae_proto::receive_error`]), with this service's limit.
+/// RESOURCE_EXHAUSTED ([`jsae_wire::receive_error`]), with this service's limit.
 fn broken_stream(status: Status) -> Status {
-    let status = jsae_proto::receive_error(status);
+    let status = jsae_wire::receive_error(status);
     if status.code() != Code::ResourceExhausted {
         return status;
     }
@@ -304,7 +304,7 @@ pub(crate) async fn receive_sessions(
                  (MAX_SESSIONS_PER_CALL): send them in smaller calls"
             ))));
         }
-        let session = Session::from(message);
+        let session = crate::session_from_wire(message);
         match check_session(&session) {
             Ok(()) => match &mut stager {
                 Some(stager) => stager.push(session, bytes).await.map_err(nothing_stored)?,

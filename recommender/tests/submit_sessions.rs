@@ -9,13 +9,13 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use jsae_proto::settings::{Algo, EnvName, SessionSource, TrainConfig};
-use jsae_proto::wire::pb;
 use jsae_recommender::baseline::PolicyChoice;
 use jsae_recommender::{
     MAX_CALL_BYTES, MAX_CALLS_PER_CONNECTION, MAX_CONCURRENT_CALLS, Recommender,
     SUBMIT_IDLE_TIMEOUT, WeightSources,
 };
+use jsae_settings::{Algo, EnvName, SessionSource, TrainConfig};
+use jsae_wire::pb;
 use tokio::sync::{mpsc, oneshot};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::Code;

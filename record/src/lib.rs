@@ -14,7 +14,7 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use jsae_proto::{ActionSpace, StateSpace};
+use jsae_wire::{ActionSpace, StateSpace};
 use serde::{Deserialize, Serialize};
 
 pub mod reader;
@@ -56,7 +56,7 @@ pub struct RecordingInfo {
 impl RecordingInfo {
     /// What a run of `config` named `run_id`, stepping environments of these spaces, records.
     pub fn of_run(
-        config: &jsae_proto::settings::TrainConfig,
+        config: &jsae_settings::TrainConfig,
         run_id: &str,
         states: &StateSpace,
         actions: &ActionSpace,

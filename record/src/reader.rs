@@ -4,7 +4,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
 use prost::Message;
 use serde::Serialize;
 

@@ -5,7 +5,7 @@ use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
 
-use jsae_proto::{ActionBatch, StateBatch, TransitionBatch};
+use jsae_wire::{ActionBatch, StateBatch, TransitionBatch};
 use mcap::records::MessageHeader;
 use prost::Message;
 

@@ -3,8 +3,8 @@
 
 use std::path::PathBuf;
 
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
 use jsae_record::{RecordedSteps, Recorder, RecordingInfo, read, summarize};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace, TransitionBatch};
 
 fn temp(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("jsae-record-{}-{name}", std::process::id()));

@@ -1,7 +1,7 @@
 """Records Gymnasium v5 MuJoCo trajectories for the parity check against `jsae env-replay`.
 
 For each seed: reset(seed), write the state right after reset and the actions to IN, and what
-Gymnasium's step returned to EXPECTED (CONTRACT.md's env-replay format). Actions are drawn
+Gymnasium's step returned to EXPECTED (the env-replay format, docs/src/environments.md). Actions are drawn
 from U(-s, s) (s = 1.5 by default, so some lie outside the actuators' [-1, 1] range). An episode ends at
 termination or after --steps steps.
 

@@ -1,4 +1,4 @@
-"""A Recommender client in Python (grpcio), built from proto/jsae.proto at run time.
+"""A Recommender client in Python (grpcio), built from wire/proto/jsae.proto at run time.
 
 Usage: recommender_client.py ADDR KNOWN_ITEM [KNOWN_ITEM ...]
        recommender_client.py --ask ADDR K ITEM [ITEM ...]
@@ -25,7 +25,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 
 
 def build_stubs(out_dir):
-    proto_dir = os.path.join(os.path.dirname(__file__), "..", "..", "proto", "proto")
+    proto_dir = os.path.join(os.path.dirname(__file__), "..", "..", "wire", "proto")
     proto_dir = os.path.abspath(proto_dir)
     include = os.path.join(os.path.dirname(protoc.__file__), "_proto")
     rc = protoc.main([

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The held-out table of the README's recommender results: runs `jsae recommender-eval` on
+"""The held-out table of the recommender results (docs/src/experiments/recommender.md): runs `jsae recommender-eval` on
 every recommender run under the given directories (a sweep's `runs/`, or run directories) and
 prints one markdown row per policy: the learned policies per algorithm, then the reference
 policies, each as the mean over the runs with the lowest and highest run in brackets.

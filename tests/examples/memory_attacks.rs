@@ -10,7 +10,7 @@
 
 use std::time::{Duration, Instant};
 
-use jsae_proto::wire::pb;
+use jsae_wire::pb;
 use tonic::transport::{Channel, Endpoint};
 use tonic_health::pb::HealthCheckRequest;
 use tonic_health::pb::health_client::HealthClient;
@@ -100,7 +100,7 @@ fn empty_fragment(episodes: usize) -> pb::RolloutFragment {
 async fn push(url: &str, fragment: pb::RolloutFragment, messages: usize) -> Result<u64, String> {
     let channel = connect(url).await.ok_or("no connection")?;
     let mut client = pb::learner_client::LearnerClient::new(channel)
-        .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+        .max_encoding_message_size(jsae_wire::MAX_MESSAGE_BYTES);
     let stream = tokio_stream::iter(std::iter::repeat_n(fragment, messages));
     client
         .push_fragments(stream)

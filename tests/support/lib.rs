@@ -7,9 +7,9 @@ pub mod services;
 
 use std::path::PathBuf;
 
-use jsae_learner::MetricsTable;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::{Algo, EnvName, TrainConfig};
 
 /// A fresh, empty directory under the system temp dir for one test.
 pub fn temp_dir(name: &str) -> PathBuf {

@@ -8,12 +8,12 @@ use std::time::Duration;
 use jsae_actor::service::{ActorOptions, ActorReport};
 use jsae_embedder::service::EmbedderOptions;
 use jsae_learner::service::LearnerOptions;
-use jsae_learner::{MetricsTable, Summary};
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::security::Security;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
-use jsae_proto::wire::pb;
-use jsae_proto::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
+use jsae_net::security::Security;
+use jsae_run_dir::RunDir;
+use jsae_run_dir::{MetricsTable, Summary};
+use jsae_settings::{Algo, EnvName, TrainConfig};
+use jsae_wire::pb;
+use jsae_wire::{ActionBatch, RolloutFragment, StateBatch, TransitionBatch};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
@@ -344,7 +344,7 @@ pub async fn watch_policy(url: &str, actor_id: u64) -> tonic::Streaming<pb::Poli
     let mut client = pb::learner_client::LearnerClient::connect(url.to_string())
         .await
         .expect("connect")
-        .max_decoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+        .max_decoding_message_size(jsae_wire::MAX_MESSAGE_BYTES);
     client
         .watch_policy(pb::WatchRequest {
             actor_id,

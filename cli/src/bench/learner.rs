@@ -15,8 +15,8 @@ use std::time::Instant;
 
 use jsae_learner::{Ingested, Learner, PolicyHead, UpdatePath, policy_shape};
 use jsae_nn::DeviceKind;
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
-use jsae_proto::{RolloutFragment, StateSpace};
+use jsae_settings::{Algo, EnvName, TrainConfig};
+use jsae_wire::{RolloutFragment, StateSpace};
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;

@@ -20,7 +20,7 @@ use rand_chacha::ChaCha8Rng;
 
 use jsae_envs::EnvName;
 use jsae_learner::policy_shape;
-use jsae_proto::settings::{Algo, TrainConfig};
+use jsae_settings::{Algo, TrainConfig};
 
 use jsae_actor::worker::ActorWorker;
 
@@ -51,28 +51,28 @@ fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: De
     let mut embedding = embedding.clone();
     let policy = policy.for_inference(&device.device());
     let n = match worker.state_space() {
-        jsae_proto::StateSpace::Categorical { sizes } => sizes[0] as u32,
-        jsae_proto::StateSpace::Real { .. } => 1,
+        jsae_wire::StateSpace::Categorical { sizes } => sizes[0] as u32,
+        jsae_wire::StateSpace::Real { .. } => 1,
     };
     let mut rng = ChaCha8Rng::seed_from_u64(7);
-    let states = jsae_proto::StateBatch::Categorical {
+    let states = jsae_wire::StateBatch::Categorical {
         factors: 1,
         data: (0..batch).map(|_| rng.random_range(0..n)).collect(),
     };
     let head = policy.head().action_space();
     let (mut x, mut logp) = (Vec::new(), Vec::new());
-    let mut e = jsae_proto::ActionBatch::empty(&head);
-    let mut a = jsae_proto::ActionBatch::empty(worker.action_space());
+    let mut e = jsae_wire::ActionBatch::empty(&head);
+    let mut a = jsae_wire::ActionBatch::empty(worker.action_space());
     let mut once = |x: &mut Vec<f32>,
                     logp: &mut Vec<f32>,
-                    e: &mut jsae_proto::ActionBatch,
-                    a: &mut jsae_proto::ActionBatch| {
+                    e: &mut jsae_wire::ActionBatch,
+                    a: &mut jsae_wire::ActionBatch| {
         e.clear();
         a.clear();
         logp.clear();
         embedding.embed_states(&states, x);
         policy.act(x, false, &mut rng, e, logp);
-        if let jsae_proto::ActionBatch::Continuous { data, .. } = &*e {
+        if let jsae_wire::ActionBatch::Continuous { data, .. } = &*e {
             embedding.decode(data, a);
         }
     };
@@ -120,7 +120,7 @@ fn time_collect(worker: &mut ActorWorker, envs: usize, repeats: usize) -> f64 {
     t.elapsed().as_secs_f64() * 1e6 / repeats as f64
 }
 
-/// gridworld-discrete with JSAE (512 actions) in the layout the README's figures for it were
+/// gridworld-discrete with JSAE (512 actions) in the layout the performance pages' figures for it were
 /// measured with: one actor's 16 environments, a batch of 2,048 (the run's default has since
 /// become a shared batch of 64 environments).
 pub(crate) fn gridworld_as_measured() -> TrainConfig {
@@ -149,7 +149,7 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
     let mut ppo = config.ppo.clone();
     ppo.batch_steps = batch;
     // the device comparison is burn's: the fused update runs on the host whatever the device
-    ppo.update = jsae_proto::settings::UpdatePath::Burn;
+    ppo.update = jsae_settings::UpdatePath::Burn;
     let mut learner = Learner::new(ppo.clone(), input, head, 10 * batch as u64, 1, device);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let mut w = w64;
@@ -159,7 +159,7 @@ pub fn bench_device(device: DeviceKind, quick: bool) -> DeviceBench {
         let mut fragments = Vec::new();
         while fragments
             .iter()
-            .map(|f: &jsae_proto::RolloutFragment| f.len())
+            .map(|f: &jsae_wire::RolloutFragment| f.len())
             .sum::<usize>()
             < batch
         {

@@ -13,7 +13,7 @@ use std::process::Command;
 use std::time::Instant;
 
 use jsae_nn::DeviceKind;
-use jsae_proto::settings::{Algo, TrainConfig};
+use jsae_settings::{Algo, TrainConfig};
 use mujoco_rs::prelude::MjData;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -64,11 +64,11 @@ pub(crate) fn env_rate(robot: Robot, steps: usize) -> f64 {
     let mut env = MujocoEnv::new(robot, &MujocoConfig::default());
     let mut rng = ChaCha8Rng::seed_from_u64(2);
     let nu = env.state_sizes().1.min(match env.action_space() {
-        jsae_proto::ActionSpace::Continuous { dim, .. } => *dim,
-        jsae_proto::ActionSpace::Discrete { .. } => 0,
+        jsae_wire::ActionSpace::Continuous { dim, .. } => *dim,
+        jsae_wire::ActionSpace::Discrete { .. } => 0,
     });
     let mut action = vec![0.0f32; nu];
-    let mut states = jsae_proto::StateBatch::empty(env.state_space());
+    let mut states = jsae_wire::StateBatch::empty(env.state_space());
     env.reset(&mut rng);
     let t = Instant::now();
     for _ in 0..steps {

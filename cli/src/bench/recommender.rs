@@ -11,9 +11,9 @@ use std::time::{Duration, Instant};
 use jsae_embedder::EmbeddingModel;
 use jsae_learner::{Policy, policy_shape};
 use jsae_nn::{BurnDevice, DeviceKind};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
-use jsae_proto::wire::pb;
-use jsae_proto::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_settings::{Algo, EnvName, TrainConfig};
+use jsae_wire::pb;
+use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -125,8 +125,8 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
     }
     let in_process_per_s = calls as f64 / started.elapsed().as_secs_f64();
 
-    let server_rt = jsae_proto::net::runtime()?;
-    let listener = server_rt.block_on(jsae_proto::net::bind("127.0.0.1:0"))?;
+    let server_rt = jsae_net::runtime()?;
+    let listener = server_rt.block_on(jsae_net::bind("127.0.0.1:0"))?;
     let url = format!("http://{}", listener.local_addr()?);
     let (stop_tx, stop_rx) = tokio::sync::oneshot::channel::<()>();
     let server = server_rt.spawn(serve(
@@ -274,9 +274,9 @@ fn rss_mib() -> f64 {
 /// `items` items, its resident memory (MiB), and environment steps per second on it.
 pub fn model_scale(items: u32, sessions: u32) -> anyhow::Result<(u64, f64, f64, usize, f64)> {
     use jsae_envs::recsys::{Catalogue, NgramModel};
-    let config = jsae_proto::settings::RecommenderConfig {
+    let config = jsae_settings::RecommenderConfig {
         top_n: items,
-        synthetic: jsae_proto::settings::SyntheticConfig {
+        synthetic: jsae_settings::SyntheticConfig {
             items,
             sessions,
             mean_len: 8.0,

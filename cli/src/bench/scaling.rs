@@ -22,9 +22,10 @@
 use std::path::{Path, PathBuf};
 
 use jsae_envs::{EnvName, Robot};
-use jsae_learner::{MetricsTable, UpdatePath};
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::{Algo, TrainConfig};
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::UpdatePath;
+use jsae_settings::{Algo, TrainConfig};
 
 use crate::launch;
 use crate::progress::Progress;

@@ -13,9 +13,9 @@ use jsae_embedder::EmbedderTrainer;
 use jsae_embedder::service::EmbedderOptions;
 use jsae_learner::Learner;
 use jsae_learner::service::LearnerOptions;
-use jsae_proto::settings::TrainConfig;
-use jsae_proto::wire::pb;
-use jsae_proto::{ActionBatch, RolloutFragment, TransitionBatch};
+use jsae_settings::TrainConfig;
+use jsae_wire::pb;
+use jsae_wire::{ActionBatch, RolloutFragment, TransitionBatch};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -78,7 +78,7 @@ fn base_config() -> TrainConfig {
 }
 
 async fn embedder_grpc(config: &TrainConfig, batches: &[TransitionBatch]) -> anyhow::Result<f64> {
-    let listener = jsae_proto::net::bind("127.0.0.1:0").await?;
+    let listener = jsae_net::bind("127.0.0.1:0").await?;
     let url = format!("http://{}", listener.local_addr()?);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let server = tokio::spawn(jsae_embedder::service::serve(
@@ -90,9 +90,9 @@ async fn embedder_grpc(config: &TrainConfig, batches: &[TransitionBatch]) -> any
         },
     ));
     let mut client = pb::embedder_client::EmbedderClient::new(
-        jsae_proto::security::Security::default().channel(&url)?,
+        jsae_net::security::Security::default().channel(&url)?,
     )
-    .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+    .max_encoding_message_size(jsae_wire::MAX_MESSAGE_BYTES);
     let wire: Vec<pb::TransitionBatch> = batches.iter().cloned().map(Into::into).collect();
     // warm up the connection
     client
@@ -144,7 +144,7 @@ fn embedder_in_process(config: &TrainConfig, batches: &[TransitionBatch]) -> f64
 }
 
 async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow::Result<f64> {
-    let listener = jsae_proto::net::bind("127.0.0.1:0").await?;
+    let listener = jsae_net::bind("127.0.0.1:0").await?;
     let url = format!("http://{}", listener.local_addr()?);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let options = LearnerOptions {
@@ -164,9 +164,9 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
         },
     ));
     let mut client = pb::learner_client::LearnerClient::new(
-        jsae_proto::security::Security::default().channel(&url)?,
+        jsae_net::security::Security::default().channel(&url)?,
     )
-    .max_encoding_message_size(jsae_proto::wire::MAX_MESSAGE_BYTES);
+    .max_encoding_message_size(jsae_wire::MAX_MESSAGE_BYTES);
     let wire: Vec<pb::RolloutFragment> = frags.iter().cloned().map(Into::into).collect();
     client
         .push_fragments(tokio_stream::iter(wire[..1].to_vec()))

@@ -13,7 +13,7 @@ struct Cli {
     /// Log lines as text (coloured only on a terminal) or JSON objects, one per line; the
     /// services `jsae train` starts log the same way [default: $JSAE_LOG_FORMAT, else text].
     #[arg(long, global = true, value_enum)]
-    log_format: Option<jsae_proto::logging::LogFormat>,
+    log_format: Option<jsae_net::logging::LogFormat>,
     #[command(subcommand)]
     command: jsae_cli::commands::Command,
 }
@@ -21,7 +21,7 @@ struct Cli {
 fn main() -> std::process::ExitCode {
     let cli = Cli::parse();
     if let Some(format) = cli.log_format {
-        jsae_proto::logging::choose_log_format(format);
+        jsae_net::logging::choose_log_format(format);
     }
     jsae_cli::closed_pipe::run(|| jsae_cli::commands::run(cli.command))
 }

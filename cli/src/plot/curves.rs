@@ -7,7 +7,7 @@ use std::ops::Range;
 
 use jsae_experiments::figures::{self, Band, Drawing, Figure, reason, steps_label};
 use jsae_experiments::report::min_max_band;
-use jsae_learner::{MetricsTable, Summary};
+use jsae_run_dir::{MetricsTable, Summary};
 use plotters::coord::Shift;
 use plotters::prelude::*;
 

@@ -11,9 +11,9 @@ use jsae_embedder::Embedding;
 use jsae_envs::EnvName;
 use jsae_envs::gridworld::{Gridworld, action_motions};
 use jsae_experiments::figures::{Drawing, reason};
-use jsae_proto::StateBatch;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::TrainConfig;
+use jsae_run_dir::RunDir;
+use jsae_settings::TrainConfig;
+use jsae_wire::StateBatch;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 

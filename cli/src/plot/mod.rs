@@ -21,9 +21,9 @@ use std::process::ExitCode;
 use clap::Args;
 use jsae_embedder::Embedding;
 use jsae_experiments::figures::{self, Drawing};
-use jsae_learner::MetricsTable;
-use jsae_proto::run_dir::RunDir;
-use jsae_proto::settings::TrainConfig;
+use jsae_run_dir::MetricsTable;
+use jsae_run_dir::RunDir;
+use jsae_settings::TrainConfig;
 
 pub use curves::{Combined, Curve, Eval, LearningCurve, RunCurves};
 pub use embeddings::{ColourKey, Scatter};

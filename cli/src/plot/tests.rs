@@ -4,10 +4,10 @@
 use std::path::{Path, PathBuf};
 
 use jsae_embedder::EmbeddingModel;
-use jsae_learner::Summary;
 use jsae_nn::BurnDevice;
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::settings::{Algo, EnvName, TrainConfig};
+use jsae_run_dir::Summary;
+use jsae_run_dir::{RunDir, Weights};
+use jsae_settings::{Algo, EnvName, TrainConfig};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

@@ -8,11 +8,11 @@
 use std::io;
 
 use jsae_embedder::Embedding;
-use jsae_learner::Summary;
 use jsae_nn::{BurnDevice, RecordError};
-use jsae_proto::EmbeddingSnapshot;
-use jsae_proto::run_dir::{RunDir, Weights, read_weights};
-use jsae_proto::settings::TrainConfig;
+use jsae_run_dir::Summary;
+use jsae_run_dir::{RunDir, Weights, read_weights};
+use jsae_settings::TrainConfig;
+use jsae_wire::EmbeddingSnapshot;
 
 /// The run's `summary.json`; `None` while there is none (a run still going, or one stopped
 /// before its end). A summary that is there but not readable is an error.

@@ -20,7 +20,7 @@ use burn::module::Param;
 use burn::nn::Linear;
 use burn::tensor::{Device, Tensor, TensorData};
 use jsae_nn::MlpConfig;
-use jsae_proto::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
 use super::{EmbeddingModel, EmbeddingNet, uniform_linear, unreachable_action, wide_softmax};
@@ -149,7 +149,7 @@ impl EmbeddingModel {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use jsae_proto::settings::Representation;
+    use jsae_settings::Representation;
     use rand::SeedableRng;
 
     #[test]

@@ -4,7 +4,7 @@
 //! the inferred embedding: both are a cross-entropy over `[batch, n]` logits, 2M values at
 //! 4,096 actions. As a graph of burn operations that is many full passes a step, `exp`
 //! through libm among them (40% of the AE's pre-training time in a profile; 5 epochs at
-//! 4,096 actions took 28.7 s so and 13.2 s this way, README: Performance). Here the logits
+//! 4,096 actions took 28.7 s so and 13.2 s this way, docs/src/performance/baselines-embedder.md). Here the logits
 //! come from one product on the gemm kernels, the softmax and its gradient
 //! `(softmax - onehot) / batch` from one pass with the vectorised `exp`, and the gradients at
 //! the few small inputs (`[batch, d]`, `[n, d]`, `[n]`) from two more products. They reach

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use jsae_proto::settings::{RecommenderConfig, SessionSource};
+use jsae_env_spec::{RecommenderConfig, SessionSource};
 
 use super::sessions::{Session, id_hash};
 use super::{RecsysError, instacart, rees46, synthetic};

@@ -5,8 +5,8 @@
 
 use std::sync::Arc;
 
-use jsae_proto::settings::{EnvName, RecommenderConfig};
-use jsae_proto::{ActionSpace, StateBatch, StateSpace};
+use jsae_env_spec::{EnvName, RecommenderConfig};
+use jsae_spaces::{ActionSpace, StateBatch, StateSpace};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

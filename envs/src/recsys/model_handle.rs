@@ -9,8 +9,8 @@ use std::path::Path;
 use std::sync::{Arc, Mutex, OnceLock, RwLock, Weak};
 use std::time::Duration;
 
-use jsae_proto::StateBatch;
-use jsae_proto::settings::RecommenderConfig;
+use jsae_env_spec::RecommenderConfig;
+use jsae_spaces::StateBatch;
 
 use super::data::{load_sessions, split_sessions};
 use super::ngram::{Catalogue, NgramModel};

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use super::*;
 use crate::recsys::store::SessionStore;
 use crate::recsys::{Purchase, Session};
-use jsae_proto::settings::{SessionSource, SyntheticConfig};
+use jsae_env_spec::{SessionSource, SyntheticConfig};
 
 fn session(id: &str, items: &[&str]) -> Session {
     Session {

@@ -5,7 +5,7 @@
 
 use std::collections::HashMap;
 
-use jsae_proto::settings::{RecommenderConfig, RewardOn};
+use jsae_env_spec::{RecommenderConfig, RewardOn};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};

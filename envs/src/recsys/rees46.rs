@@ -7,7 +7,7 @@ use std::collections::{HashMap, HashSet};
 use std::io::Read;
 use std::path::Path;
 
-use jsae_proto::settings::GroupBy;
+use jsae_env_spec::GroupBy;
 
 use super::RecsysError;
 use super::sessions::{Purchase, Session};

@@ -1,7 +1,6 @@
 //! Purchase sessions, the unit every source produces and the service accepts, and the
 //! contract's rules for a well-formed one.
 
-use jsae_proto::wire::pb;
 use serde::{Deserialize, Serialize};
 
 /// Most purchases one submitted session may hold.
@@ -106,7 +105,7 @@ impl IdKey {
     }
 }
 
-/// Why a session is malformed (CONTRACT.md: empty id, no purchases, an empty item id, a
+/// Why a session is malformed (docs/src/recommender.md: empty id, no purchases, an empty item id, a
 /// negative, NaN or infinite price), or over the documented limits (a price over
 /// [`MAX_PRICE`] included).
 pub fn check_session(session: &Session) -> Result<(), String> {
@@ -142,40 +141,6 @@ pub fn check_session(session: &Session) -> Result<(), String> {
         }
     }
     Ok(())
-}
-
-impl From<pb::Session> for Session {
-    fn from(s: pb::Session) -> Self {
-        Session {
-            session_id: s.session_id,
-            purchases: s
-                .purchases
-                .into_iter()
-                .map(|p| Purchase {
-                    item_id: p.item_id,
-                    price: p.price,
-                    time_unix_ms: p.time_unix_ms,
-                })
-                .collect(),
-        }
-    }
-}
-
-impl From<Session> for pb::Session {
-    fn from(s: Session) -> Self {
-        pb::Session {
-            session_id: s.session_id,
-            purchases: s
-                .purchases
-                .into_iter()
-                .map(|p| pb::Purchase {
-                    item_id: p.item_id,
-                    price: p.price,
-                    time_unix_ms: p.time_unix_ms,
-                })
-                .collect(),
-        }
-    }
 }
 
 #[cfg(test)]

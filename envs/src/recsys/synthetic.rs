@@ -2,7 +2,7 @@
 //! can use: item popularity falls off like Zipf's law, each item has three likely
 //! successors, and a session sometimes follows the item before last (2-gram structure).
 
-use jsae_proto::settings::SyntheticConfig;
+use jsae_env_spec::SyntheticConfig;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

@@ -6,7 +6,7 @@ use crate::PpoConfig;
 use crate::ppo::clipped_surrogate_loss;
 use burn::tensor::Tensor;
 use jsae_nn::{BurnDevice, DeviceKind};
-use jsae_proto::ActionBatch;
+use jsae_wire::ActionBatch;
 use ndarray::Array2;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -236,7 +236,7 @@ fn gaussian_loss_and_gradients_equal_burn_autodiff() {
             check(PolicyHead::Gaussian { dim: 3 }, tanh_mean, clip_value_loss);
         }
         // a std beyond the entropy bonus's cap (with a tanh mean), and one just below it
-        let cap = jsae_proto::settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
+        let cap = jsae_settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
         check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, cap + 0.3);
         check_at(PolicyHead::Gaussian { dim: 3 }, tanh_mean, false, cap - 0.1);
     }
@@ -253,7 +253,7 @@ fn the_entropy_bonus_counts_the_std_up_to_its_cap() {
         data: vec![0.0; dim],
     };
     let at = |log_std: f32| (0.5 + crate::policy::HALF_LOG_2PI + log_std) * dim as f32;
-    let cap = jsae_proto::settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
+    let cap = jsae_settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
     // (tanh mean, the setting, initial log-std, the entropy the bonus sees)
     for (tanh_mean, setting, init_log_std, want) in [
         (true, None, cap + 0.4, at(cap)),

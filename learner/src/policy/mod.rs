@@ -10,7 +10,7 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 use jsae_nn::{
     self as nn, HostInput, HostMlp, Mlp, MlpConfig, MlpWork, PairCross, RecordError, SparseRows,
 };
-use jsae_proto::{ActionBatch, ActionSpace};
+use jsae_wire::{ActionBatch, ActionSpace};
 use ndarray::ArrayView2;
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
@@ -58,7 +58,7 @@ impl PolicyHead {
 
     /// The behaviour log-probabilities an actor acting with this head can report
     /// ([`Policy::act`]), `(lowest, highest)`, which the learner accepts at the wire
-    /// ([`jsae_proto::FragmentBounds`]). Gaussian, per component: the density's peak at the
+    /// ([`jsae_wire::FragmentBounds`]). Gaussian, per component: the density's peak at the
     /// smallest std, down to a draw [`MAX_NORMAL_DRAW`] stds out at the largest std.
     /// Categorical: an action is drawn only where its weight `exp(l - max)` is positive in
     /// `f32` (at least `2^-149`), so its log-probability is at least `ln 2^-149 - ln n`; it
@@ -549,8 +549,8 @@ impl Policy {
 /// when it embeds states (else the raw features), a Gaussian over the action-embedding space
 /// when f decodes actions (else the action space's own head).
 pub fn policy_shape(
-    config: &jsae_proto::settings::TrainConfig,
-    states: &jsae_proto::StateSpace,
+    config: &jsae_settings::TrainConfig,
+    states: &jsae_wire::StateSpace,
     actions: &ActionSpace,
 ) -> (usize, PolicyHead) {
     let representation = config.algo.representation();

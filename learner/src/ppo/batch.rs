@@ -5,7 +5,7 @@
 use burn::tensor::{Device, Tensor};
 use jsae_nn as nn;
 use jsae_nn::{HostInput, SparseRows};
-use jsae_proto::{ActionBatch, RolloutFragment};
+use jsae_wire::{ActionBatch, RolloutFragment};
 use ndarray::{Array2, ArrayView2};
 
 use crate::PpoConfig;

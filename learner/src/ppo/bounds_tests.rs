@@ -3,7 +3,7 @@
 //! that are not finite is undone.
 
 use jsae_nn::DeviceKind;
-use jsae_proto::ActionBatch;
+use jsae_wire::ActionBatch;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

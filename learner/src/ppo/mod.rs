@@ -36,7 +36,7 @@ mod update;
 use burn::optim::{AdamConfig, ModuleOptimizer};
 use burn::tensor::Device;
 use jsae_nn::{BurnDevice, DeviceKind, RecordError};
-use jsae_proto::{EpisodeStat, FragmentBounds, PolicySnapshot, RolloutFragment};
+use jsae_wire::{EpisodeStat, FragmentBounds, PolicySnapshot, RolloutFragment};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -142,8 +142,8 @@ impl Learner {
 
     /// The learner of a run: its policy shape from the environment's spaces and the
     /// algorithm, one batch = one rollout round of the run's actors
-    /// ([`jsae_proto::settings::TrainConfig::round_steps`]).
-    pub fn for_run(config: &jsae_proto::settings::TrainConfig) -> Self {
+    /// ([`jsae_settings::TrainConfig::round_steps`]).
+    pub fn for_run(config: &jsae_settings::TrainConfig) -> Self {
         let (states, actions) = config.spaces();
         let (input, head) = crate::policy_shape(config, &states, &actions);
         let mut ppo = config.ppo.clone();
@@ -164,24 +164,24 @@ impl Learner {
     /// The run's summary, from the evaluation report and this learner's counters.
     pub fn summary(
         &self,
-        config: &jsae_proto::settings::TrainConfig,
+        config: &jsae_settings::TrainConfig,
         env_steps: u64,
         wall_seconds: f64,
-        eval: &jsae_proto::EvalReport,
-    ) -> crate::Summary {
-        let meta = crate::RunMeta {
+        eval: &jsae_wire::EvalReport,
+    ) -> jsae_run_dir::Summary {
+        let meta = jsae_run_dir::RunMeta {
             env: config.env.as_str().into(),
             algo: config.algo.as_str().into(),
             seed: config.seed,
             device: config.device.as_str().into(),
         };
-        crate::Summary::new(
+        jsae_run_dir::Summary::new(
             &meta,
             env_steps,
             wall_seconds,
             eval,
             self.updates(),
-            self.lag(),
+            (self.lag().mean(), self.lag().max),
             self.dropped(),
             self.version(),
         )

@@ -8,7 +8,7 @@
 
 use std::time::Instant;
 
-use jsae_proto::{ActionBatch, StateBatch, StateSpace};
+use jsae_wire::{ActionBatch, StateBatch, StateSpace};
 use ndarray::Array2;
 use rand::seq::SliceRandom;
 
@@ -282,7 +282,7 @@ fn logged_batch(
 #[cfg(test)]
 mod tests {
     use jsae_nn::DeviceKind;
-    use jsae_proto::{StateBatch, StateSpace};
+    use jsae_wire::{StateBatch, StateSpace};
 
     use super::super::Learner;
     use crate::PpoConfig;
@@ -354,7 +354,7 @@ mod tests {
     #[test]
     fn the_prior_picks_the_counted_item_travels_in_the_bytes_and_is_what_the_update_reads() {
         use jsae_nn::HostInput;
-        use jsae_proto::{ActionBatch, PolicySnapshot};
+        use jsae_wire::{ActionBatch, PolicySnapshot};
         use ndarray::ArrayView2;
         use rand::SeedableRng;
 

@@ -2,7 +2,7 @@
 //! metrics of an update, and policy-lag statistics.
 
 use jsae_nn::RecordError;
-use jsae_proto::{PolicySnapshot, ValidationError};
+use jsae_wire::{PolicySnapshot, ValidationError};
 
 /// Why the learner refused or dropped a fragment.
 #[derive(Debug, thiserror::Error)]

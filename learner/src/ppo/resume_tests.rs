@@ -4,8 +4,8 @@
 //! weights, on both update paths. A learner given the weights alone does not.
 
 use jsae_nn::DeviceKind;
-use jsae_proto::run_dir::LatestCheckpoint;
-use jsae_proto::{PolicySnapshot, RolloutFragment};
+use jsae_run_dir::LatestCheckpoint;
+use jsae_wire::{PolicySnapshot, RolloutFragment};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 

@@ -12,7 +12,7 @@
 use burn::optim::AdamConfig;
 use burn::tensor::Bytes;
 use jsae_nn::AdamMoments;
-use jsae_proto::run_dir::LatestCheckpoint;
+use jsae_run_dir::LatestCheckpoint;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -20,7 +20,7 @@ use super::credits::Account;
 use super::state_codec::{StateError, StateReader, StateWriter};
 use super::{ADAM_EPSILON, Adam, LagStats, Learner, LearnerError};
 use crate::normalise::{RunningMeanStd, ScalerState};
-use jsae_proto::settings::UpdatePath;
+use jsae_settings::UpdatePath;
 
 /// The first bytes of a learner's training state.
 const MAGIC: &[u8; 8] = b"JSAELRN\0";
@@ -180,7 +180,7 @@ impl Learner {
             ),
             _ => None,
         };
-        self.restore(&jsae_proto::PolicySnapshot {
+        self.restore(&jsae_wire::PolicySnapshot {
             version: checkpoint.version,
             bytes: checkpoint.weights.clone(),
         })?;

@@ -201,7 +201,7 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
 #[test]
 fn ingest_refuses_an_absurd_reward_and_a_claim_that_goes_back_and_credits_no_more_than_delivered() {
     use crate::LearnerError;
-    use jsae_proto::ValidationError;
+    use jsae_wire::ValidationError;
     let head = PolicyHead::Gaussian { dim: 2 };
     let config = PpoConfig {
         batch_steps: 1024,
@@ -255,7 +255,7 @@ fn a_batch_is_split_into_parts_of_at_least_the_update_size_in_arrival_order() {
             })
             .collect::<Vec<_>>()
     };
-    let sizes = |parts: Vec<Vec<jsae_proto::RolloutFragment>>| -> Vec<Vec<u32>> {
+    let sizes = |parts: Vec<Vec<jsae_wire::RolloutFragment>>| -> Vec<Vec<u32>> {
         parts
             .iter()
             .map(|p| p.iter().map(|f| f.env_index).collect())

@@ -14,8 +14,8 @@ use rand::seq::SliceRandom;
 use super::batch::Batch;
 use super::{Learner, UpdateMetrics};
 use crate::policy::{Policy, PolicyHead};
-use jsae_proto::ActionBatch;
-use jsae_proto::settings::UpdatePath;
+use jsae_settings::UpdatePath;
+use jsae_wire::ActionBatch;
 
 impl Learner {
     pub(super) fn optimise(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {

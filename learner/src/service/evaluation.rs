@@ -9,8 +9,8 @@ use std::collections::HashMap;
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
 
-use jsae_proto::RpcError;
-use jsae_proto::wire::pb;
+use jsae_wire::RpcError;
+use jsae_wire::pb;
 use tokio::sync::mpsc;
 
 use super::grpc::{Announced, Input};
@@ -77,7 +77,7 @@ impl Evaluation {
 
     fn request(&mut self, actor_id: u64) -> pb::EvalRequest {
         let request = pb::EvalRequest {
-            request_id: jsae_proto::random_id(),
+            request_id: jsae_wire::random_id(),
             episodes: self.episodes,
             seed: self.seed,
             actor_id,

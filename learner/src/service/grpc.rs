@@ -11,10 +11,11 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Duration;
 
-use jsae_proto::streams::StreamLimit;
-use jsae_proto::wire::{self, pb};
-use jsae_proto::{
-    EmbeddingSnapshot, EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError, net,
+use jsae_net as net;
+use jsae_net::streams::StreamLimit;
+use jsae_wire::{self as wire, pb};
+use jsae_wire::{
+    EmbeddingSnapshot, EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError,
 };
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;

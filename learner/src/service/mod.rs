@@ -29,18 +29,20 @@ use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
 use std::time::{Duration, Instant};
 
-use jsae_proto::run_dir::{RunDir, Weights};
-use jsae_proto::security::{Security, SecurityFlags};
-use jsae_proto::settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
-use jsae_proto::wire::{MAX_MESSAGE_BYTES, pb};
-use jsae_proto::{FragmentBounds, client, net};
+use jsae_net::security::{Security, SecurityFlags};
+use jsae_net::{self as net, client};
+use jsae_run_dir::{RunDir, Weights};
+use jsae_settings::{EmbedderFlag, ListenFlag, RunFlags, TrainConfig};
 use jsae_telemetry::{LearnerMetrics, MetricsFlag, MetricsRegistry};
+use jsae_wire::FragmentBounds;
+use jsae_wire::{MAX_MESSAGE_BYTES, pb};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{Learner, LoggedPurchases, ResumePoint, RunMetrics, Summary, UPDATE_COLUMNS};
+use crate::{Learner, LoggedPurchases, UPDATE_COLUMNS};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
+use jsae_run_dir::{ResumePoint, RunMetrics, Summary};
 
 /// Messages queued between the service and the learner thread.
 const QUEUE: usize = 256;
@@ -125,7 +127,7 @@ pub async fn serve(
                 s.state_checksum()
             );
             if let Some(wall) = wall {
-                started = crate::metrics::run_started(wall);
+                started = jsae_run_dir::run_started(wall);
                 tracing::info!(
                     "the run goes on from {} env steps and {wall:.1} s",
                     learner.env_steps()
@@ -147,7 +149,7 @@ pub async fn serve(
         None => false,
     };
     let mut fresh = !resumed;
-    if !resumed && let Some(source) = config.init_source()? {
+    if !resumed && let Some(source) = jsae_run_dir::init_source(&config)? {
         learner.warm_start(&source.policy)?;
         tracing::info!("policy warm-started from {}", source.dir.display());
         fresh = false;
@@ -175,7 +177,7 @@ pub async fn serve(
         state: publish_rx.clone(),
         stopping: stop_rx.clone(),
         shares_batch: config.shared_batch_envs().is_some(),
-        watches: jsae_proto::streams::StreamLimit::watches("WatchPolicy"),
+        watches: jsae_net::streams::StreamLimit::watches("WatchPolicy"),
         actor_ids: evaluation::ActorIds::default(),
     };
     // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
@@ -287,7 +289,7 @@ pub async fn serve(
     }
 }
 
-/// The learner's command line (CONTRACT.md).
+/// The learner's command line (docs/src/operations/services.md).
 #[derive(Debug, Clone, clap::Parser)]
 #[command(
     name = "jsae-learner",
@@ -342,7 +344,9 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
                 .checkpoints()
                 .refuse_unreadable(Weights::Policy)?;
             let security = args.security.load()?;
-            let embedder = args.embedder.for_run(&c, &security)?;
+            let embedder = args
+                .embedder
+                .for_run(&c, |flag, url| security.check_url(flag, url))?;
             let logged = logs(&c)?.map(Arc::new);
             Ok((c, embedder, logged, security))
         });

@@ -23,7 +23,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::time::{Duration, Instant};
 
-use jsae_proto::settings::share_envs;
+use jsae_settings::share_envs;
 
 /// The most env steps one actor may say its rollout delivers (a larger claim would hold
 /// every round until its deadline).

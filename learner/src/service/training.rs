@@ -9,18 +9,17 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use jsae_proto::run_dir::{LatestCheckpoint, RunDir, Weights};
-use jsae_proto::settings::TrainConfig;
-use jsae_proto::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
+use jsae_run_dir::{LatestCheckpoint, RunDir, Weights};
+use jsae_settings::TrainConfig;
 use jsae_telemetry::{LearnerMetrics, LearnerSample};
+use jsae_wire::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
 use tokio::sync::{mpsc, watch};
 
 use super::evaluation::Evaluation;
 use super::grpc::{Input, PolicyState};
 use super::roster::Roster;
-use crate::{
-    Ingested, Learner, LoggedPurchases, MetricsSink, Summary, UpdateReport, update_scalars,
-};
+use crate::{Ingested, Learner, LoggedPurchases, UpdateReport, update_scalars};
+use jsae_run_dir::{MetricsSink, Summary};
 
 /// The round reached its batch (logged when its silent actors were left out).
 fn round_completed(roster: &mut Roster, now: Instant) {

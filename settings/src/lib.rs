@@ -1,0 +1,29 @@
+//! Every setting of a run, shared by the actor, the embedder and the learner so that each
+//! service reads the same `config.toml` the same way: environment names and settings (and
+//! the spaces they give), the embedding model's and PPO's settings, the device, and the run
+//! configuration with its layering (defaults -> TOML file -> environment variables and
+//! flags) and validation. The environments' own settings come from `jsae_env_spec` and the
+//! device from `jsae_nn`; both are re-exported here, as a run's settings hold them.
+
+#![forbid(unsafe_code)]
+
+mod algo;
+mod batch;
+mod embedding;
+mod file_errors;
+mod flags;
+mod ppo;
+mod run;
+
+pub use algo::{Algo, Representation};
+pub use batch::share_envs;
+pub use embedding::EmbeddingConfig;
+pub use flags::{EmbedderFlag, ListenFlag, RunFlags, device_parser};
+pub use jsae_env_spec::{
+    EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
+    SessionSource, SlotmachineConfig, SyntheticConfig, gridworld_action_motions,
+    validate_env_config,
+};
+pub use jsae_nn::DeviceKind;
+pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
+pub use run::{ConfigError, ConfigFile, ExplorationConfig, TrainConfig};

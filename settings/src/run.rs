@@ -1,0 +1,592 @@
+//! The run configuration: every setting of a training run, layered defaults -> file (TOML)
+//! -> environment variables and flags (clap), validated whole before anything starts, and
+//! saved as `config.toml` next to the results.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+
+use super::{
+    Algo, DeviceKind, EmbeddingConfig, EnvConfig, EnvName, PpoConfig, validate_env_config,
+};
+use jsae_spaces::{ActionSpace, StateSpace};
+
+/// Every setting of a training run.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Environment.
+    pub env: EnvName,
+    /// Algorithm.
+    pub algo: Algo,
+    /// Seed of everything (environments, initial weights, sampling, minibatch order).
+    pub seed: u64,
+    /// Env steps of the whole run (all actors, random pre-training steps included).
+    pub env_steps: u64,
+    /// Actor workers.
+    pub actors: usize,
+    /// Environments per actor, stepped together with batched inference.
+    pub envs_per_actor: usize,
+    /// Environments one batch is gathered from, shared among the actors present: each
+    /// steps its share of its own (the learner tells it), so the batch stays the same as
+    /// actors join and leave. 0: every actor steps all of its environments and the batch is
+    /// one rollout of every actor present, growing with them. Unset in a file: the env and
+    /// algo's default (64 for an embedded-action gridworld-discrete, else 0). See
+    /// [`TrainConfig::shared_batch_envs`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub batch_envs: Option<usize>,
+    /// Threads an actor steps its environments on (0: the machine's cores over `actors`, less
+    /// one for the learner's update as separate processes, at least one; at most one per
+    /// environment). Worth it where a step costs far more than a thread hand-off (MuJoCo).
+    pub step_threads: usize,
+    /// Steps per environment per rollout fragment.
+    pub rollout_len: usize,
+    /// Separate processes: rollouts an actor may have out that no newer policy version has
+    /// answered yet (1: on-policy like the one-process mode, policy lag 0 with one actor; 2:
+    /// the next rollout is collected while the learner updates, lag up to 1, its fragments
+    /// kept under PPO's clip). 2 on MuJoCo, where stepping is most of the work: HalfCheetah
+    /// PPO 1M as separate processes took 31 s instead of 43 s on 2 cores, and 5 seeds
+    /// learned as well (docs/src/performance/scaling.md); 1 elsewhere.
+    pub rollouts_per_policy: usize,
+    /// Separate processes: the least time an actor waits for a newer policy before it
+    /// collects anyway (so a run goes on when another actor that the learner's batch counted
+    /// on died); the wait grows to 3 times the slowest recent arrival of a new version.
+    pub policy_wait_ms: u64,
+    /// burn device.
+    pub device: DeviceKind,
+    /// Deterministic evaluation episodes at the end.
+    pub eval_episodes: usize,
+    /// Run directory: `--out` or the default `runs/ENV-ALGO-seedN`, never a setting (not
+    /// written to config.toml, so a run's config passed back with another seed does not
+    /// write into the old run's directory).
+    #[serde(skip)]
+    pub out: PathBuf,
+    /// Run actor, embedder and learner in this process, in lockstep (deterministic for a
+    /// seed), instead of as separate service processes talking gRPC over loopback.
+    pub one_process: bool,
+    /// A finished run of the same environment and algorithm to warm-start from: the
+    /// embedding parts whose shapes match (phi, T, ...; g only with the same action count)
+    /// and the policy, where its shape matches (`jsae_run_dir::InitSource`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init_from: Option<PathBuf>,
+    /// Environment settings.
+    #[serde(default)]
+    pub environment: EnvConfig,
+    /// Embedding model and trainer settings (JSAE).
+    #[serde(default)]
+    pub embedding: EmbeddingConfig,
+    /// PPO settings.
+    #[serde(default)]
+    pub ppo: PpoConfig,
+    /// Count-based exploration bonus (off by default).
+    #[serde(default)]
+    pub exploration: ExplorationConfig,
+}
+
+/// A count-based exploration bonus: the learner sees `r + bonus / sqrt(N(s'))`, where `N`
+/// counts all actors' visits to the next state (categorical states by index, real states
+/// binned; the actors send the keys, the learner counts). Environment returns, evaluation and
+/// the embedder's transitions are unchanged.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct ExplorationConfig {
+    /// Bonus for a first visit (0 turns it off).
+    pub bonus: f64,
+    /// Bins per unit length for real-valued states.
+    pub bins_per_unit: f64,
+}
+
+impl Default for ExplorationConfig {
+    fn default() -> Self {
+        Self {
+            bonus: 0.0,
+            bins_per_unit: 40.0,
+        }
+    }
+}
+
+/// A partial configuration as read from a file: whatever it sets overrides the defaults.
+#[derive(Debug, Clone, Default, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfigFile {
+    /// See [`TrainConfig`].
+    pub env: Option<EnvName>,
+    /// See [`TrainConfig`].
+    pub algo: Option<Algo>,
+    /// See [`TrainConfig`].
+    pub seed: Option<u64>,
+    /// See [`TrainConfig`].
+    pub env_steps: Option<u64>,
+    /// See [`TrainConfig`].
+    pub actors: Option<usize>,
+    /// See [`TrainConfig`].
+    pub envs_per_actor: Option<usize>,
+    /// See [`TrainConfig`].
+    pub batch_envs: Option<usize>,
+    /// See [`TrainConfig`].
+    pub step_threads: Option<usize>,
+    /// See [`TrainConfig`].
+    pub rollout_len: Option<usize>,
+    /// See [`TrainConfig`].
+    pub rollouts_per_policy: Option<usize>,
+    /// See [`TrainConfig`].
+    pub policy_wait_ms: Option<u64>,
+    /// See [`TrainConfig`].
+    pub device: Option<DeviceKind>,
+    /// See [`TrainConfig`].
+    pub eval_episodes: Option<usize>,
+    /// Written into config.toml by older versions and ignored: the run directory is
+    /// `--out`'s (or the default), never the settings'.
+    #[serde(rename = "out")]
+    pub _ignored_out: Option<toml::Value>,
+    /// See [`TrainConfig`].
+    pub one_process: Option<bool>,
+    /// See [`TrainConfig`].
+    pub init_from: Option<PathBuf>,
+    /// Environment settings (tables `[environment.gridworld]`, `[environment.slotmachine]`).
+    pub environment: Option<toml::Value>,
+    /// Embedding settings (`[embedding]`).
+    pub embedding: Option<toml::Value>,
+    /// PPO settings (`[ppo]`).
+    pub ppo: Option<toml::Value>,
+    /// Exploration bonus settings (`[exploration]`).
+    pub exploration: Option<toml::Value>,
+}
+
+/// Why a configuration was refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("cannot read config file {path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The cause.
+        source: std::io::Error,
+    },
+    /// The file is not valid TOML for this schema.
+    #[error("config file {path}: {message}")]
+    Parse {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A value is out of range.
+    #[error("invalid setting: {0}")]
+    Invalid(String),
+}
+
+/// Merges `overlay` into `base`, table by table.
+fn merge(base: &mut toml::Value, overlay: toml::Value) {
+    match (base, overlay) {
+        (toml::Value::Table(b), toml::Value::Table(o)) => {
+            for (k, v) in o {
+                match b.get_mut(&k) {
+                    Some(existing) => merge(existing, v),
+                    None => {
+                        b.insert(k, v);
+                    }
+                }
+            }
+        }
+        (b, o) => *b = o,
+    }
+}
+
+/// `base` with the file's `[section]` laid over it; an error names the dotted key and its
+/// line in `text` (the file).
+fn overlay<T: Serialize + serde::de::DeserializeOwned>(
+    base: &T,
+    part: Option<toml::Value>,
+    (path, text, section): (&Path, Option<&str>, &str),
+) -> Result<T, ConfigError> {
+    let Some(part) = part else {
+        return Ok(toml::Value::try_from(base)
+            .ok()
+            .and_then(|v| v.try_into().ok())
+            .unwrap_or_else(|| unreachable_roundtrip()));
+    };
+    let mut value = toml::Value::try_from(base).map_err(|e| ConfigError::Parse {
+        path: path.into(),
+        message: e.to_string(),
+    })?;
+    merge(&mut value, part);
+    value
+        .try_into()
+        .map_err(|e: toml::de::Error| ConfigError::Parse {
+            path: path.into(),
+            message: super::file_errors::section_error(text, section, &e),
+        })
+}
+
+fn unreachable_roundtrip() -> ! {
+    panic!("a default configuration always round-trips through TOML")
+}
+
+impl TrainConfig {
+    /// The defaults for an environment and algorithm.
+    pub fn defaults(env: EnvName, algo: Algo) -> Self {
+        let mut embedding = EmbeddingConfig::default();
+        let mut ppo = PpoConfig::default();
+        let mut exploration = ExplorationConfig::default();
+        if matches!(env, EnvName::Gridworld | EnvName::GridworldDiscrete) {
+            // Random play finds the goal around the solid L in a few % of episodes and the
+            // policy learns to avoid walls before it has: without this bonus 2 of 5 seeds
+            // found the goal at all in 500k steps; with it every seed tried did.
+            exploration.bonus = 0.1;
+        }
+        // The baselines act in an action-embedding space too, with JSAE's PPO settings.
+        let embedded_actions = algo.representation().decodes_actions();
+        if embedded_actions {
+            ppo.gae_lambda = 0.97;
+            ppo.tanh_mean = true;
+            ppo.ent_coef = 0.05;
+        }
+        if env == EnvName::Gridworld && embedded_actions {
+            // With the continuous state the evaluation's mean action ran into a wall for the
+            // whole episode on 3 of 3 seeds at 0.05 (the sampled policy reached the goal in
+            // every training episode); at 0.01, 1 of 3 (seeds 2 and 3 solved it).
+            ppo.ent_coef = 0.01;
+        }
+        if env == EnvName::Slotmachine {
+            // The next reel position is `position + advance mod 6`: a linear T on the two
+            // embeddings cannot express it, and 30 epochs of a tanh T leave it near chance.
+            // With these settings the model loss after pre-training is 0.9 nats over the four
+            // reels (chance: 7.2) and the policy improves; see docs/src/experiments/slotmachine.md.
+            embedding.state_dim = 16;
+            embedding.action_dim = 4;
+            embedding.transition_hidden = 128;
+            embedding.pretrain_epochs = 200;
+            embedding.update_steps = 200;
+            ppo.gamma = 0.9;
+            ppo.ent_coef = 0.0;
+            // Measured over 5 seeds at 300k steps (results/sweeps/slotmachine-variants.toml):
+            // with 25 random transitions per action (102,400, a third of the budget) and an
+            // initial std of 1 in E the policy stayed near random (eval 157 against PPO's 282);
+            // with 5 (the factored T is fitted from them, 0.97 nats) and 0.3 it reaches
+            // 400-470 (docs/src/experiments/slotmachine.md).
+            embedding.pretrain_per_action = 5;
+            ppo.init_log_std = -1.2;
+        }
+        // One rollout of every actor's 16 environments is a batch (it grows with the actors),
+        // except where a larger batch shared among the actors was measured to learn better.
+        let (mut envs_per_actor, mut batch_envs) = (16, None);
+        if env == EnvName::GridworldDiscrete && embedded_actions {
+            // A batch of 64 environments x 128 steps (8,192), shared among the actors present
+            // (each has 64 and steps its share): at 500k steps, 512 actions, one actor in one
+            // process, seeds 2051-2080, the deterministic evaluation solved 28 of 30 runs
+            // against 27 with 32 environments and 22 with 16 (more runs found the goal, and
+            // fewer greedy loops; docs/src/experiments/loop-500k-batch.md).
+            (envs_per_actor, batch_envs) = (64, Some(64));
+        }
+        let mut env_steps = 500_000;
+        if env == EnvName::Recommender {
+            // 835 items: a random policy recommends each one about 120 times in the
+            // pre-training set. Dimensions from the paper's grid ({8,16,32} x {4,8,12}).
+            env_steps = 300_000;
+            embedding.state_dim = 16;
+            embedding.action_dim = 8;
+            embedding.pretrain_transitions = 100_000;
+            if algo == Algo::Ppo {
+                // Measured at 2M steps (docs/src/experiments/recommender.md): the reward alone
+                // leaves PPO at the popular items (1.15 over 5 seeds), the next-purchase loss
+                // and a pair feature take it to 6.40; interaction alone does not reach the
+                // greedy rule in 2M steps, the logs the model is built from do. A network
+                // pre-trained on them stays 0.28 below the rule (5 seeds); the counts as a
+                // fixed prior in the logits are at its level, and PPO as a contextual bandit
+                // (planning adds 0.07) must move them slowly: at lr 1e-4 seed 1001 fell from
+                // 7.99 to 7.77, at 1e-5 7.98 (results/sweeps/recommender-prior.toml).
+                ppo.hidden = vec![128, 128];
+                ppo.logged_prior = true;
+                ppo.gamma = 0.0;
+                ppo.lr = 1e-5;
+            }
+        }
+        if env.is_mujoco() {
+            // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
+            // 16 envs x 128; 32 minibatches of 64; clipped value loss), with observation
+            // normalisation in the policy and, for JSAE, in phi.
+            env_steps = 1_000_000;
+            ppo.normalize_obs = true;
+            ppo.minibatch_size = 64;
+            ppo.clip_value_loss = true;
+            ppo.ent_coef = 0.0;
+            embedding.normalize_states = true;
+            embedding.transition_hidden = 128;
+            embedding.pretrain_epochs = 20;
+            embedding.update_every = 50_000;
+            (embedding.state_dim, embedding.action_dim) = match env {
+                EnvName::Ant => (32, 8),
+                _ => (20, 6),
+            };
+            if embedded_actions {
+                // The std is over E, and f stretches E: near g(box) a unit step in E moves
+                // the torques by about 3.8 on HalfCheetah and 2.2-2.5 on Ant (measured on the
+                // default runs with the example action_box_coverage). These starts are about
+                // 1 and 0.8 in torques (PPO starts at 1). With 0.6 in E (2.3 in torques, most
+                // samples saturated) JSAE trailed PPO on HalfCheetah, with 0.26 it does not
+                // (docs/src/experiments/mujoco.md); Ant at 0.6 learned to fall at once.
+                ppo.init_log_std = if env == EnvName::Ant { -1.0 } else { -1.35 };
+            }
+        }
+        Self {
+            env,
+            algo,
+            seed: 1,
+            env_steps,
+            actors: 1,
+            envs_per_actor,
+            batch_envs,
+            step_threads: if env.is_mujoco() { 0 } else { 1 },
+            rollout_len: 128,
+            rollouts_per_policy: if env.is_mujoco() { 2 } else { 1 },
+            policy_wait_ms: 3000,
+            device: DeviceKind::Flex,
+            // recommender returns are sums of a few Bernoulli draws: 20 episodes are too noisy
+            eval_episodes: if env == EnvName::Recommender { 200 } else { 20 },
+            out: PathBuf::new(),
+            one_process: false,
+            init_from: None,
+            environment: EnvConfig::default(),
+            embedding,
+            ppo,
+            exploration,
+        }
+    }
+
+    /// Defaults, then the file (if any). `env`/`algo` given on the command line pick the
+    /// defaults the file is laid over.
+    pub fn from_layers(
+        env: Option<EnvName>,
+        algo: Option<Algo>,
+        file: Option<&Path>,
+    ) -> Result<Self, ConfigError> {
+        let text = match file {
+            None => None,
+            Some(path) => {
+                Some(
+                    std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+                        path: path.into(),
+                        source,
+                    })?,
+                )
+            }
+        };
+        let parsed: ConfigFile = match (file, &text) {
+            (Some(path), Some(text)) => toml::from_str(text).map_err(|e| ConfigError::Parse {
+                path: path.into(),
+                message: super::file_errors::top_level_error(text, &e),
+            })?,
+            _ => ConfigFile::default(),
+        };
+        let env = env.or(parsed.env).unwrap_or(EnvName::GridworldDiscrete);
+        let algo = algo.or(parsed.algo).unwrap_or(Algo::Jsae);
+        let mut c = Self::defaults(env, algo);
+        let path = file.unwrap_or(Path::new("<defaults>"));
+        c.seed = parsed.seed.unwrap_or(c.seed);
+        c.env_steps = parsed.env_steps.unwrap_or(c.env_steps);
+        c.actors = parsed.actors.unwrap_or(c.actors);
+        c.envs_per_actor = parsed.envs_per_actor.unwrap_or(c.envs_per_actor);
+        c.batch_envs = parsed.batch_envs.or(c.batch_envs);
+        c.step_threads = parsed.step_threads.unwrap_or(c.step_threads);
+        c.rollout_len = parsed.rollout_len.unwrap_or(c.rollout_len);
+        c.rollouts_per_policy = parsed.rollouts_per_policy.unwrap_or(c.rollouts_per_policy);
+        c.policy_wait_ms = parsed.policy_wait_ms.unwrap_or(c.policy_wait_ms);
+        c.device = parsed.device.unwrap_or(c.device);
+        c.eval_episodes = parsed.eval_episodes.unwrap_or(c.eval_episodes);
+        c.one_process = parsed.one_process.unwrap_or(c.one_process);
+        c.init_from = parsed.init_from.or(c.init_from);
+        let text = text.as_deref();
+        c.environment = overlay(
+            &c.environment,
+            parsed.environment,
+            (path, text, "environment"),
+        )?;
+        c.embedding = overlay(&c.embedding, parsed.embedding, (path, text, "embedding"))?;
+        c.ppo = overlay(&c.ppo, parsed.ppo, (path, text, "ppo"))?;
+        c.exploration = overlay(
+            &c.exploration,
+            parsed.exploration,
+            (path, text, "exploration"),
+        )?;
+        Ok(c)
+    }
+
+    /// Seed of the deterministic evaluation episodes at the end of a run.
+    pub fn eval_seed(&self) -> u64 {
+        self.seed ^ 0xE7A1
+    }
+
+    /// The environment's state and action spaces under these settings.
+    pub fn spaces(&self) -> (StateSpace, ActionSpace) {
+        self.env.spaces(&self.environment)
+    }
+
+    /// Whether the run's embedding no longer changes once `env_steps` are done
+    /// (`embedding.hold_from`; never without an embedder, without a step budget or unset).
+    pub fn embedding_held_at(&self, env_steps: u64) -> bool {
+        let Some(share) = self.embedding.hold_from else {
+            return false;
+        };
+        self.algo.representation().needs_embedder()
+            && self.env_steps > 0
+            && env_steps as f64 >= share * self.env_steps as f64
+    }
+
+    /// Checks everything; the reason names the bad setting.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |m: String| Err(ConfigError::Invalid(m));
+        if self.actors == 0
+            || self.envs_per_actor == 0
+            || self.rollout_len == 0
+            || self.rollouts_per_policy == 0
+        {
+            return bad(
+                "actors, envs_per_actor, rollout_len and rollouts_per_policy must be positive"
+                    .into(),
+            );
+        }
+        if self.env_steps == 0 {
+            return bad("env_steps must be positive".into());
+        }
+        if self.eval_episodes == 0 {
+            return bad("eval_episodes must be positive".into());
+        }
+        validate_env_config(&self.environment).map_err(ConfigError::Invalid)?;
+        let e = &self.exploration;
+        if !(e.bonus >= 0.0 && e.bonus.is_finite() && e.bins_per_unit > 0.0) {
+            return bad("exploration.bonus must be >= 0 and exploration.bins_per_unit > 0".into());
+        }
+        self.ppo.validate().map_err(ConfigError::Invalid)?;
+        // settings that only the recommender's categorical PPO policy has a use for
+        let recommender_ppo = self.env == EnvName::Recommender && self.algo == Algo::Ppo;
+        let items = "purchase logs and a categorical policy over their items";
+        for (set, key, why) in [
+            (
+                self.ppo.next_purchase_coef > 0.0,
+                "next_purchase_coef",
+                "a categorical policy over the items of the state",
+            ),
+            (
+                self.ppo.logged_pretrain_epochs > 0,
+                "logged_pretrain_epochs",
+                items,
+            ),
+            (self.ppo.logged_prior, "logged_prior", items),
+            (
+                self.ppo.pair_buckets > 0,
+                "pair_buckets",
+                "a pair of one-hot items in the policy's input",
+            ),
+        ] {
+            if set && !recommender_ppo {
+                return bad(format!(
+                    "ppo.{key} is for --env recommender --algo ppo ({why})"
+                ));
+            }
+        }
+        if self.algo.representation().needs_embedder() {
+            self.embedding.validate().map_err(ConfigError::Invalid)?;
+            let budget = self.pretrain_budget();
+            if budget as u64 >= self.env_steps {
+                return bad(format!(
+                    "env_steps ({}) must exceed the pre-training transitions ({budget}: \
+                     embedding.pretrain_transitions, or pretrain_per_action x actions)",
+                    self.env_steps
+                ));
+            }
+            if self.embedding.replay_capacity < budget {
+                return bad(format!(
+                    "embedding.replay_capacity ({}) must hold the pre-training transitions \
+                     ({budget})",
+                    self.embedding.replay_capacity
+                ));
+            }
+        }
+        // one round of the run's actors is the learner's batch: past the budget, the run would
+        // silently take more steps than asked for in one update
+        if self.round_steps() as u64 > self.env_steps {
+            return bad(format!(
+                "env_steps ({}) is less than one batch: {} environments x rollout_len {} = {} \
+                 steps; lower --envs, batch_envs or rollout_len, or raise --env-steps",
+                self.env_steps,
+                self.actor_envs().iter().sum::<usize>(),
+                self.rollout_len,
+                self.round_steps()
+            ));
+        }
+        Ok(())
+    }
+
+    /// Random transitions the embedder pre-trains on in this run (the embedding settings'
+    /// budget for this environment's action space).
+    pub fn pretrain_budget(&self) -> usize {
+        self.embedding.pretrain_budget(&self.spaces().1)
+    }
+
+    /// The configuration as TOML (what `config.toml` holds).
+    pub fn to_toml(&self) -> String {
+        toml::to_string_pretty(self).unwrap_or_else(|e| format!("# not serialisable: {e}\n"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_file_overrides_defaults_and_unknown_keys_are_refused() {
+        let dir = std::env::temp_dir().join(format!("jsae-config-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("temp dir");
+        let file = dir.join("run.toml");
+        std::fs::write(
+            &file,
+            "seed = 7\n[ppo]\nepochs = 3\n[environment.gridworld]\nactuators = 4\n",
+        )
+        .expect("write");
+        let c = TrainConfig::from_layers(None, None, Some(&file)).expect("parses");
+        assert_eq!(
+            (c.seed, c.ppo.epochs, c.environment.gridworld.actuators),
+            (7, 3, 4)
+        );
+        assert_eq!(c.ppo.lr, PpoConfig::default().lr);
+        // the saved config reads back as the same configuration
+        let saved = dir.join("saved.toml");
+        std::fs::write(&saved, c.to_toml()).expect("write");
+        let back = TrainConfig::from_layers(None, None, Some(&saved)).expect("round trip");
+        assert_eq!(back, c);
+        std::fs::write(&file, "[ppo]\nepochz = 3\n").expect("write");
+        let err = TrainConfig::from_layers(None, None, Some(&file)).expect_err("typo refused");
+        assert!(err.to_string().contains("epochz"), "{err}");
+    }
+
+    #[test]
+    fn bad_values_are_refused_with_a_reason() {
+        let mut c = TrainConfig::defaults(EnvName::Gridworld, Algo::Jsae);
+        c.env_steps = 1000;
+        assert!(
+            c.validate()
+                .expect_err("too short")
+                .to_string()
+                .contains("pretrain")
+        );
+        for algo in [Algo::Ae, Algo::Ra] {
+            TrainConfig::defaults(EnvName::Gridworld, algo)
+                .validate()
+                .expect("the baselines run");
+        }
+        // 2^13 actions x 25 transitions each do not fit the default replay buffer.
+        let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Jsae);
+        c.environment.gridworld.actuators = 13;
+        c.env_steps = 1_000_000;
+        let reason = c.validate().expect_err("too small a buffer").to_string();
+        assert!(
+            reason.contains("replay_capacity") && reason.contains("204800"),
+            "{reason}"
+        );
+        c.environment.gridworld.actuators = 12;
+        assert_eq!(c.pretrain_budget(), 102_400);
+        assert!(c.validate().is_ok());
+    }
+}
