@@ -144,6 +144,14 @@ def subcommands():
     return names
 
 
+def locked_packages():
+    """The names of every package in Cargo.lock (a dependency named with `-p` is real too)."""
+    if not hasattr(locked_packages, "names"):
+        with open(os.path.join(ROOT, "Cargo.lock")) as f:
+            locked_packages.names = set(re.findall(r'^name = "([^"]+)"', f.read(), re.M))
+    return locked_packages.names
+
+
 def load_crate_map():
     """scripts/crate-map.py as a module (its name has a hyphen): the one reader of `cargo metadata`."""
     spec = importlib.util.spec_from_file_location(
@@ -380,8 +388,8 @@ def check_commands(path, line, text):
         for m in re.finditer(r"(?:^|\s)-p\s+([A-Za-z0-9_-]+)", row if "cargo " in row else ""):
             crate = m.group(1)
             counts["crates"] += 1
-            if crate not in CRATES:
-                problem(path, line + offset, f"`-p {crate}`: no such crate in the workspace")
+            if crate not in CRATES and crate not in locked_packages():
+                problem(path, line + offset, f"`-p {crate}`: no such crate in the workspace or Cargo.lock")
                 continue
             ex = re.search(r"--example\s+([A-Za-z0-9_-]+)", row[m.end() :])
             if ex and ex.group(1) not in CRATES[crate]["examples"]:

@@ -499,7 +499,9 @@ pub async fn run(
 #[command(
     name = "jsae-actor",
     version,
-    about = "JSAE-RL actor: steps environments, streams transitions and fragments"
+    about = "JSAE-RL actor: steps environments, streams transitions and fragments",
+    mut_arg("env", |a| a.help(jsae_settings::SERVICE_ENV_HELP)),
+    mut_arg("seed", |a| a.help(jsae_settings::SERVICE_SEED_HELP))
 )]
 pub struct ActorArgs {
     /// `--embedder`.

@@ -10,6 +10,14 @@ use jsae_settings::{EnvName, RunFlags};
 pub enum Command {
     /// Train on this machine (embedder, learner and actors) and print the summary.
     Train(crate::train_command::TrainArgs),
+    /// Print the settings of an environment and algorithm as a settings file, every key with
+    /// its explanation above it: the defaults, with `--config` and `--set` laid over them
+    /// (what `jsae train` with the same flags would run; feed it back with `--config`).
+    Config {
+        /// `--env/--algo/--seed/--config/--set`.
+        #[command(flatten)]
+        run: RunFlags,
+    },
     /// Measure PPO update throughput and inference latency on both burn devices, and the
     /// services' ingest rates over loopback gRPC against in-process channels.
     Bench {
@@ -104,6 +112,8 @@ pub enum Command {
     /// myopic most likely next item read from the n-gram model) under a run's evaluation
     /// protocol: the evaluation seed of a run with `--seed N`, the data of the settings
     /// file's `[environment.recommender]`.
+    #[command(mut_arg("env", |a| a.help("Environment [default: recommender, the only one \
+        it takes]")))]
     RecommenderBaseline {
         /// `--env/--algo/--seed/--config` (the environment must be the recommender; the
         /// settings file's `[environment.recommender]` picks the data; the evaluation seed of
@@ -192,6 +202,23 @@ pub fn run(command: Command) -> ExitCode {
             }
             print!("{}", crate::bench::transport::run(quick));
             ExitCode::SUCCESS
+        }
+        Command::Config { run } => {
+            let text = run
+                .layered()
+                .and_then(|c| c.validate().map(|()| c))
+                .map_err(|e| e.to_string())
+                .and_then(|c| c.to_commented_toml().map_err(|e| e.to_string()));
+            match text {
+                Ok(text) => {
+                    print!("{text}");
+                    ExitCode::SUCCESS
+                }
+                Err(e) => {
+                    eprintln!("jsae config: {e}");
+                    ExitCode::from(2)
+                }
+            }
         }
         Command::RecommenderBaseline { run, episodes } => {
             let run = RunFlags {

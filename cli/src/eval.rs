@@ -34,7 +34,10 @@ pub struct EvalArgs {
     /// end of training].
     #[arg(long)]
     pub seed: Option<u64>,
-    /// A policy checkpoint file [default: the version summary.json names, else the newest].
+    /// A policy checkpoint file (`checkpoints/policy-vN.bpk`) [default: the version
+    /// summary.json names, else the newest]. It is evaluated with the run's settings and,
+    /// where the algorithm has an embedder, the embedding summary.json names (else the
+    /// newest), not the embedding of the policy's own time.
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Deterministic discrete actions of JSAE: f of the mean, or the most likely action.

@@ -9,6 +9,7 @@ use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
 
 /// The health check's command line.
 #[derive(Debug, Clone, clap::Args)]
+#[command(mut_arg("tls_client_ca", |a| a.hide(true)))] // a server's flag
 pub struct HealthArgs {
     /// The service's address (`http://host:port`, or `host:port`).
     #[arg(

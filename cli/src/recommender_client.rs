@@ -12,6 +12,7 @@ use jsae_recommender::{MAX_CALL_BYTES, MAX_SESSIONS_PER_CALL};
 
 /// The client's command line.
 #[derive(Debug, Clone, clap::Args)]
+#[command(mut_arg("tls_client_ca", |a| a.hide(true)))] // a server's flag
 pub struct AskArgs {
     /// The Recommender's address (`http://host:port`, or `host:port`).
     #[arg(
@@ -59,6 +60,7 @@ pub fn main(args: AskArgs) -> std::process::ExitCode {
 
 /// `jsae submit-sessions`' command line.
 #[derive(Debug, Clone, clap::Args)]
+#[command(mut_arg("tls_client_ca", |a| a.hide(true)))] // a server's flag
 pub struct SubmitArgs {
     /// The Recommender's address (`http://host:port`, or `host:port`).
     #[arg(

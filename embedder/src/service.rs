@@ -350,7 +350,9 @@ pub async fn serve(
 #[command(
     name = "jsae-embedder",
     version,
-    about = "JSAE-RL embedder: trains phi/g/T/f on raw transitions and publishes snapshots"
+    about = "JSAE-RL embedder: trains phi/g/T/f on raw transitions and publishes snapshots",
+    mut_arg("env", |a| a.help(jsae_settings::SERVICE_ENV_HELP)),
+    mut_arg("seed", |a| a.help(jsae_settings::SERVICE_SEED_HELP))
 )]
 pub struct EmbedderArgs {
     /// `--listen`.

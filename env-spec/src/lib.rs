@@ -6,6 +6,10 @@
 
 use serde::{Deserialize, Serialize};
 
+/// This file, whose structs' doc comments explain each environment setting (`jsae config`
+/// prints them beside the values).
+pub const SOURCE: &str = include_str!("lib.rs");
+
 use jsae_spaces::{ActionSpace, StateSpace};
 
 /// The environments `jsae train --env` accepts.

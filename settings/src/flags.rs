@@ -1,12 +1,12 @@
 //! The run flags every command that trains, serves or evaluates a run takes: `--env`,
-//! `--algo`, `--seed` and `--config`, with their environment variables. One struct,
+//! `--algo`, `--seed`, `--config` and `--set`, with their environment variables. One struct,
 //! flattened into each command's arguments, so they read the same everywhere.
 
 use std::path::PathBuf;
 
 use super::{Algo, ConfigError, DeviceKind, EnvName, TrainConfig};
 
-/// `--env/--algo/--seed/--config`.
+/// `--env/--algo/--seed/--config/--set`.
 #[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
 pub struct RunFlags {
     /// Environment [default: the settings file's, else gridworld-discrete].
@@ -21,6 +21,10 @@ pub struct RunFlags {
     /// Settings file (TOML, the same keys as a run's config.toml; unknown keys are refused).
     #[arg(long, env = "JSAE_CONFIG")]
     pub config: Option<PathBuf>,
+    /// Any setting, over the settings file: `--set ppo.lr=0.0005` (a dotted key of a
+    /// settings file and a TOML value; repeat it for more). `jsae config` lists the keys.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub set: Vec<String>,
 }
 
 impl RunFlags {
@@ -28,7 +32,8 @@ impl RunFlags {
     /// settings file over them, then the seed. Not validated: a command sets its own flags
     /// first and then calls [`TrainConfig::validate`].
     pub fn layered(&self) -> Result<TrainConfig, ConfigError> {
-        let mut c = TrainConfig::from_layers(self.env, self.algo, self.config.as_deref())?;
+        let mut c =
+            TrainConfig::from_layers_with(self.env, self.algo, self.config.as_deref(), &self.set)?;
         c.seed = self.seed.unwrap_or(c.seed);
         Ok(c)
     }
@@ -47,6 +52,14 @@ impl RunFlags {
         self.layered()
     }
 }
+
+/// `--env`'s help in a service process: needed there unless `--config` names it
+/// ([`RunFlags::for_service`]).
+pub const SERVICE_ENV_HELP: &str =
+    "Environment (needed unless --config names it: every process of a run must agree)";
+/// `--seed`'s help in a service process ([`RunFlags::for_service`]).
+pub const SERVICE_SEED_HELP: &str =
+    "Seed of everything (needed unless --config names it: every process of a run must agree)";
 
 /// `--listen ADDR`: where a service serves.
 #[derive(Debug, Clone, PartialEq, Eq, clap::Args)]

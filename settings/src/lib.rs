@@ -9,16 +9,20 @@
 
 mod algo;
 mod batch;
+mod docs;
 mod embedding;
 mod file_errors;
 mod flags;
 mod ppo;
 mod run;
+mod sets;
 
 pub use algo::{Algo, Representation};
 pub use batch::share_envs;
 pub use embedding::EmbeddingConfig;
-pub use flags::{EmbedderFlag, ListenFlag, RunFlags, device_parser};
+pub use flags::{
+    EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
+};
 pub use jsae_env_spec::{
     EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
     SessionSource, SlotmachineConfig, SyntheticConfig, gridworld_action_motions,

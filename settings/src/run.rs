@@ -78,7 +78,7 @@ pub struct TrainConfig {
     /// PPO settings.
     #[serde(default)]
     pub ppo: PpoConfig,
-    /// Count-based exploration bonus (off by default).
+    /// Count-based exploration bonus (on for both gridworlds, `bonus = 0.1`; off elsewhere).
     #[serde(default)]
     pub exploration: ExplorationConfig,
 }
@@ -362,6 +362,17 @@ impl TrainConfig {
         algo: Option<Algo>,
         file: Option<&Path>,
     ) -> Result<Self, ConfigError> {
+        Self::from_layers_with(env, algo, file, &[])
+    }
+
+    /// As [`TrainConfig::from_layers`], with `sets` (`KEY=VALUE`, `--set`) laid over the
+    /// file's settings as if the file held them (so they are read and refused alike).
+    pub fn from_layers_with(
+        env: Option<EnvName>,
+        algo: Option<Algo>,
+        file: Option<&Path>,
+        sets: &[String],
+    ) -> Result<Self, ConfigError> {
         let text = match file {
             None => None,
             Some(path) => {
@@ -372,6 +383,20 @@ impl TrainConfig {
                     })?,
                 )
             }
+        };
+        let (file, text) = match sets {
+            [] => (file, text),
+            _ => (
+                Some(Path::new(match file {
+                    Some(_) => "the settings file with --set",
+                    None => "--set",
+                })),
+                Some(super::sets::laid_over(
+                    text.as_deref().unwrap_or(""),
+                    file,
+                    sets,
+                )?),
+            ),
         };
         let parsed: ConfigFile = match (file, &text) {
             (Some(path), Some(text)) => toml::from_str(text).map_err(|e| ConfigError::Parse {

@@ -38,8 +38,9 @@ pub struct PlotArgs {
     /// Run directories (each holding config.toml and metrics.csv).
     #[arg(value_name = "RUN")]
     pub runs: Vec<PathBuf>,
-    /// A run directory, the same as RUN (repeatable).
-    #[arg(long = "out", value_name = "DIR")]
+    /// A run directory, the same as RUN (repeatable; `--out` is read as this too, the name
+    /// `jsae train --out` gave the run).
+    #[arg(long = "run", alias = "out", value_name = "DIR")]
     pub out: Vec<PathBuf>,
     /// Where the figure of all the runs goes: FILE_STEM.svg and FILE_STEM.png (per
     /// environment and algorithm, the mean over its runs with a band from the lowest to the

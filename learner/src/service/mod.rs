@@ -294,7 +294,9 @@ pub async fn serve(
 #[command(
     name = "jsae-learner",
     version,
-    about = "JSAE-RL learner: PPO on embedded tuples, publishes policy snapshots, ends the run"
+    about = "JSAE-RL learner: PPO on embedded tuples, publishes policy snapshots, ends the run",
+    mut_arg("env", |a| a.help(jsae_settings::SERVICE_ENV_HELP)),
+    mut_arg("seed", |a| a.help(jsae_settings::SERVICE_SEED_HELP))
 )]
 pub struct LearnerArgs {
     /// `--listen`.
