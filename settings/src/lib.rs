@@ -9,6 +9,7 @@
 
 mod algo;
 mod batch;
+mod config_file;
 mod docs;
 mod embedding;
 mod file_errors;
@@ -19,6 +20,7 @@ mod sets;
 
 pub use algo::{Algo, Representation};
 pub use batch::share_envs;
+pub use config_file::ConfigFile;
 pub use embedding::EmbeddingConfig;
 pub use flags::{
     EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
@@ -30,4 +32,4 @@ pub use jsae_env_spec::{
 };
 pub use jsae_nn::DeviceKind;
 pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
-pub use run::{ConfigError, ConfigFile, ExplorationConfig, TrainConfig};
+pub use run::{ConfigError, ExplorationConfig, TrainConfig};
