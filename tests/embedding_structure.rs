@@ -2,7 +2,8 @@
 //! neighbours in E cause motions closer to its own than random actions do.
 
 use jsae_actor::ActorWorker;
-use jsae_embedder::{EmbedderTrainer, Embedding};
+use jsae_agent::Embedding;
+use jsae_embedder::EmbedderTrainer;
 use jsae_envs::gridworld::action_motions;
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_settings::EnvName;

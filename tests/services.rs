@@ -535,7 +535,7 @@ async fn a_fresh_learner_learns_from_logged_purchases_before_its_first_snapshot(
         }
         let d = l.policy().input_dim();
         let x: Vec<f32> = (0..4 * d).map(|i| ((i * 7) % 5) as f32 / 4.0).collect();
-        (l.policy().head_outputs(&x), l.policy().prior().is_some())
+        (l.policy().head_outputs(&x, l.prior()), l.prior().is_some())
     };
     let first_snapshot = |pretrain: usize, prior: bool, name: &str| {
         let mut c = config(EnvName::Recommender, Algo::Ppo, name);

@@ -4,9 +4,8 @@
 //! between rollouts; before the first embedding exists (JSAE) it acts uniformly at random.
 
 use jsae_agent::greedy::GreedyDecode;
+use jsae_agent::{Embedding, Policy};
 use jsae_agent::{SwapError, Weights};
-use jsae_embedder::Embedding;
-use jsae_learner::Policy;
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_record::RecordedSteps;
 use jsae_wire::{
@@ -372,6 +371,7 @@ impl ActorWorker {
                 self.policy_inputs(&self.current, &mut x);
                 self.weights.acting_policy().act(
                     &x,
+                    self.weights.prior(),
                     false,
                     &mut self.rng,
                     &mut policy_actions,
@@ -542,6 +542,7 @@ impl ActorWorker {
                 };
                 self.weights.acting_policy().act(
                     &x,
+                    self.weights.prior(),
                     deterministic,
                     rng,
                     &mut policy_action,

@@ -22,7 +22,7 @@
 
 use std::collections::HashMap;
 
-use jsae_embedder::Embedding;
+use crate::embedding::Embedding;
 use jsae_wire::ActionBatch;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;

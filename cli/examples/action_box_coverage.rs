@@ -9,8 +9,8 @@
 //! Reads each run's config.toml and newest embedding checkpoint; 20,000 samples, fixed seed.
 
 use anyhow::{Context, Result, bail};
+use jsae_agent::Embedding;
 use jsae_cli::plot::load_latest_embedding;
-use jsae_embedder::Embedding;
 use jsae_run_dir::RunDir;
 use jsae_settings::TrainConfig;
 use jsae_wire::{ActionBatch, ActionSpace};

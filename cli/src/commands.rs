@@ -146,7 +146,7 @@ pub fn run(command: Command) -> ExitCode {
     match command {
         Command::Embedder(args) => return jsae_embedder::service::main(args),
         Command::Learner(args) => {
-            return jsae_learner::service::main(args, jsae_recommender::logged_purchases);
+            return jsae_learner::service::main(args, crate::logs::logged_purchases);
         }
         Command::Actor(args) => return jsae_actor::service::main(args),
         Command::Recommender(args) => return jsae_recommender::main(args),

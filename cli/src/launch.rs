@@ -111,10 +111,7 @@ impl Service {
                 log_path.display()
             ))
         })?;
-        let addr = line
-            .rsplit(' ')
-            .next()
-            .filter(|a| a.contains(':'))
+        let addr = jsae_net::logging::announced_address(&line)
             .ok_or_else(|| TrainError::Service(format!("{name} said {line:?}")))?;
         Ok((service, Some(format!("{}://{addr}", children.scheme))))
     }

@@ -25,12 +25,14 @@ pub mod experiments;
 pub mod health;
 pub mod launch;
 pub mod log_echo;
+pub mod logs;
 pub mod oneshot;
 pub mod plot;
 pub mod progress;
 pub mod recommender_client;
 pub mod recommender_eval;
 pub mod replay;
+pub mod service_bin;
 pub mod train;
 pub mod train_command;
 

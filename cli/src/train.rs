@@ -3,16 +3,15 @@
 //! snapshots, an evaluation report), here handed over in lockstep on one thread, so a seed
 //! gives the same run twice.
 
-use std::path::PathBuf;
-use std::time::Instant;
+use std::path::{Path, PathBuf};
 
-use jsae_embedder::{EmbedderTrainer, pretrain_from_recording};
-use jsae_learner::{Ingested, Learner, UPDATE_COLUMNS, update_scalars};
+use jsae_embedder::EmbedderTrainer;
+use jsae_embedder::lifecycle::EmbedderRun;
+use jsae_learner::lifecycle::LearnerRun;
+use jsae_learner::{Ingested, Learner};
 use jsae_record::{Recorder, RecordingInfo};
-use jsae_run_dir::{
-    LatestCheckpoint, MetricsSink, ResumePoint, RunDir, RunMetrics, Summary, Weights,
-};
-use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
+use jsae_run_dir::{Resume, RunDir, Summary};
+use jsae_wire::EmbeddingSnapshot;
 
 use crate::plot;
 use crate::progress::Progress;
@@ -114,7 +113,10 @@ pub fn train_one_process(
     train_one_process_with(config, &RunOptions::default(), progress)
 }
 
-/// [`train_one_process`], recording and pre-training from recordings as `files` say.
+/// [`train_one_process`], recording and pre-training from recordings as `files` say. The
+/// learner and the embedder open on the run directory as their services do
+/// ([`LearnerRun`], [`EmbedderRun`]); only the message passing is this driver's
+/// ([`Lockstep`]).
 pub fn train_one_process_with(
     config: &TrainConfig,
     files: &RunOptions,
@@ -123,235 +125,225 @@ pub fn train_one_process_with(
     config.validate()?;
     let run = RunDir::new(&config.out);
     let dir = config.out.clone();
-    let ckpt = run.checkpoints();
-    std::fs::create_dir_all(ckpt.path()).map_err(io(&dir))?;
+    std::fs::create_dir_all(run.checkpoints().path()).map_err(io(&dir))?;
     std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
     let resume = match files.resume {
-        true => Some(ResumePoint::of(&run).map_err(io(&dir))?),
-        false => None,
+        true => Resume::Required,
+        false => Resume::Never,
     };
-    let mut started = resume.map_or_else(Instant::now, |p| p.started());
-
-    let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
-        .map(|id| ActorWorker::new(config, id, config.device))
-        .collect::<Result<_, _>>()?;
-    // each steps its share of a shared batch, as the learner service would tell it
-    for (actor, envs) in actors.iter_mut().zip(config.actor_envs()) {
-        actor.set_active_envs(envs);
-    }
-    let (states, actions) = (
-        actors[0].state_space().clone(),
-        actors[0].action_space().clone(),
-    );
-    let mut learner = Learner::for_run(config);
-    let mut embedder = config.algo.representation().needs_embedder().then(|| {
-        EmbedderTrainer::new(
-            config.embedding.clone(),
-            config.algo.representation(),
-            &states,
-            &actions,
-            config.seed,
-            config.device,
-        )
-        .with_action_motions(config.env.action_motions(&config.environment))
-    });
-    if let Some(emb) = embedder.as_mut() {
-        let phases = progress.phases();
-        emb.observe_pretraining(move |p| phases.report(None, &p.to_string()));
-    }
-    let mut last_embedding: Option<EmbeddingSnapshot> = None;
-    if let Some(point) = resume {
-        let policy = ckpt
-            .read_latest_checkpoint(Weights::Policy)
-            .ok_or_else(|| {
-                TrainError::Service(format!(
-                    "--resume: no policy checkpoint in {}",
-                    ckpt.path().display()
-                ))
-            })?;
-        let wall = learner
-            .resume(&policy)
-            .map_err(|e| TrainError::Service(format!("--resume policy: {e}")))?;
-        // the checkpoint's env steps and wall time, else the last metrics row's
-        match wall {
-            Some(wall) => started = jsae_run_dir::run_started(wall),
-            None => learner.count_steps_from(point.env_steps),
+    let mut lockstep = Lockstep::open(config, files, resume, progress)?;
+    // what a fresh run's policy learns from first, where its settings ask
+    let logged = match (resume, &config.init_from) {
+        (Resume::Never, None) => {
+            crate::logs::logged_purchases(config).map_err(TrainError::Service)?
         }
-        if let Some(emb) = embedder.as_mut() {
-            let saved =
-                jsae_embedder::service::latest_checkpoint(ckpt.path()).ok_or_else(|| {
-                    TrainError::Service(format!(
-                        "--resume: no embedding checkpoint in {}",
-                        ckpt.path().display()
-                    ))
-                })?;
-            emb.restore(&saved)
-                .map_err(|e| TrainError::Embedder(format!("--resume: {e}")))?;
-            for a in &mut actors {
-                a.set_embedding(&saved)?;
-            }
-            last_embedding = Some(saved);
-        }
-        progress.note(&format!(
-            "resuming at {} env steps from policy version {}",
-            point.env_steps,
-            learner.version()
-        ));
-    } else if let Some(source) = jsae_run_dir::init_source(config)? {
-        learner
-            .warm_start(&source.policy)
-            .map_err(|e| TrainError::Service(format!("--init-from policy: {e}")))?;
-        if let Some(emb) = embedder.as_mut() {
-            let parts = emb.warm_start(&source).map_err(TrainError::Embedder)?;
-            progress.note(&format!(
-                "warm start from {}: the policy and embedding parts {}",
-                source.dir.display(),
-                parts.join(", ")
-            ));
-        }
-    }
-    // rows of updates past the checkpoint's (a forged row, or a row of an update whose
-    // checkpoint was lost) are cut, so the rows this run writes are not taken for repeats
-    let mut metrics = RunMetrics::open(&run, &UPDATE_COLUMNS, resume.map(|_| learner.updates()))
-        .map_err(io(&dir))?;
-
-    if config.init_from.is_none() && resume.is_none() {
-        let logged = jsae_recommender::logged_purchases(config).map_err(TrainError::Service)?;
-        for note in learner.learn_from_logs(logged.as_ref())? {
-            progress.note(&note);
-        }
-    }
-    if let (Some(path), Some(emb), None) = (&files.pretrain_from, embedder.as_mut(), resume) {
-        let done = pretrain_from_recording(emb, path).map_err(TrainError::Embedder)?;
-        progress.note(&done.note);
-        let snap = &done.snapshot;
-        ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
-            .map_err(io(ckpt.path()))?;
-        for a in &mut actors {
-            a.set_embedding(&done.snapshot)?;
-        }
-        last_embedding = Some(done.snapshot);
-    }
+        _ => None,
+    };
+    let first = lockstep
+        .learner
+        .first_snapshot(logged.as_ref(), &mut |line| progress.note(&line))
+        .map_err(lifecycle)?;
     let mut recorder = match &files.record {
         Some(path) => {
+            let actors = &mut lockstep.actors;
             actors.iter_mut().for_each(|a| a.set_recording(true));
-            let info = RecordingInfo::of_run(config, &run_id(config), &states, &actions);
+            let (states, actions) = (actors[0].state_space(), actors[0].action_space());
+            let info = RecordingInfo::of_run(config, &run_id(config), states, actions);
             Some(Recorder::create(path, &info)?)
         }
         None => None,
     };
-    let first = learner
-        .snapshot()
-        .map_err(jsae_learner::LearnerError::from)?;
-    for a in &mut actors {
+    for a in &mut lockstep.actors {
         a.set_policy(&first)?;
     }
-    // the latest policy from the start (as the learner service does), so a run stopped
-    // before its first update resumes too; with the training state, as every checkpoint
-    let checkpoint = |learner: &Learner, snap: &PolicySnapshot, wall: f64| {
-        Ok::<_, TrainError>(LatestCheckpoint {
-            version: snap.version,
-            weights: snap.bytes.clone(),
-            state: learner.training_state(wall)?,
-        })
-    };
-    let saved = checkpoint(&learner, &first, started.elapsed().as_secs_f64())?;
-    ckpt.write_latest_checkpoint(Weights::Policy, &saved)
-        .map_err(io(ckpt.path()))?;
-    let mut last_policy: PolicySnapshot = first;
-    while learner.env_steps() < config.env_steps {
-        for i in 0..actors.len() {
-            let rollout = actors[i].collect(config.rollout_len);
-            if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
-                r.write(&rollout.transitions, steps)?;
-            }
-            if let Some(emb) = embedder.as_mut() {
-                emb.ingest(&rollout.transitions)
-                    .map_err(|e| TrainError::Embedder(e.to_string()))?;
-                if !emb.pretrained() {
-                    let steps = actors.iter().map(ActorWorker::env_steps).sum::<u64>();
-                    progress.phase(
-                        Some(learner.env_steps().max(steps)),
-                        &format!(
-                            "random play for pre-training: {}/{} transitions",
-                            emb.replay_len().min(emb.pretrain_budget()),
-                            emb.pretrain_budget()
-                        ),
-                    );
-                }
-                if !emb.held() && config.embedding_held_at(learner.env_steps()) {
-                    // embedding.hold_from: the policy's last updates use one embedding
-                    emb.hold();
-                }
-                if let Some(snap) = emb
-                    .poll()
-                    .map_err(|e| TrainError::Embedder(e.to_string()))?
-                {
-                    if snap.version == 1 {
-                        progress.note(&format!(
-                            "embedding pre-trained on {} random transitions (model loss {:.4})",
-                            emb.replay_len(),
-                            snap.model_loss
-                        ));
-                    }
-                    for a in &mut actors {
-                        a.set_embedding(&snap)?;
-                    }
-                    // the latest weights, so that a stopped run can be resumed
-                    ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
-                        .map_err(io(ckpt.path()))?;
-                    last_embedding = Some(snap);
-                }
-            }
-            learner.observe_actor_steps(
-                actors[i].id(),
-                actors[i].incarnation(),
-                actors[i].env_steps(),
-            );
-            for fragment in rollout.fragments {
-                if let Ingested::Updated(report) = learner.ingest(fragment)? {
-                    // the checkpoint before the row: a stop between them leaves a row
-                    // missing, never the same update twice
-                    let wall = started.elapsed().as_secs_f64();
-                    let saved = checkpoint(&learner, &report.snapshot, wall)?;
-                    ckpt.write_latest_checkpoint(Weights::Policy, &saved)
-                        .map_err(io(ckpt.path()))?;
-                    let row = update_scalars(&report.metrics, wall, last_embedding.as_ref());
-                    metrics.record(&row).map_err(io(&run.metrics_csv()))?;
-                    progress.update(&report.metrics);
-                    for a in &mut actors {
-                        a.set_policy(&report.snapshot)?;
-                    }
-                    last_policy = report.snapshot;
-                }
-            }
+    while lockstep.learner.learner().env_steps() < config.env_steps {
+        for i in 0..lockstep.actors.len() {
+            lockstep.rollout(i, recorder.as_mut(), config, progress)?;
         }
     }
-
     if let Some(r) = recorder {
         let path = r.path().to_path_buf();
         let n = r.finish()?;
         progress.note(&format!("{n} transitions recorded in {}", path.display()));
     }
     progress.note("evaluating the deterministic and the sampled policy");
-    let eval = actors[0].evaluate(config.eval_episodes, config.eval_seed());
-    let wall = started.elapsed().as_secs_f64();
-    let summary = learner.summary(config, learner.env_steps(), wall, &eval);
-    ckpt.write_versioned(Weights::Policy, last_policy.version, &last_policy.bytes)
-        .map_err(io(ckpt.path()))?;
-    if let Some(e) = &last_embedding {
-        ckpt.write_versioned(Weights::Embedding, e.version, &e.bytes)
-            .map_err(io(ckpt.path()))?;
-    }
-    summary.write(&run).map_err(io(&dir))?;
-    metrics
-        .record_eval(summary.env_steps, &summary.eval_scalars())
-        .map_err(io(&run.tensorboard()))?;
-    let plots = plot::write_run_plots(&run, config, actors[0].embedding()).map_err(io(&dir))?;
+    let eval = lockstep.actors[0].evaluate(config.eval_episodes, config.eval_seed());
+    let summary = lockstep
+        .learner
+        .finish(config, &eval, lockstep.last_embedding.as_ref())
+        .map_err(lifecycle)?;
+    let embedding = lockstep.actors[0].embedding();
+    let plots = plot::write_run_plots(&run, config, embedding).map_err(io(&dir))?;
     progress.finish();
     Ok(RunOutcome {
         summary,
         dir,
         plots,
     })
+}
+
+fn lifecycle(e: anyhow::Error) -> TrainError {
+    TrainError::Service(format!("{e:#}"))
+}
+
+/// The actor workers, the embedder and the learner of a one-process run, handing each other
+/// their messages in lockstep on one thread.
+struct Lockstep {
+    actors: Vec<ActorWorker>,
+    learner: LearnerRun,
+    embedder: Option<EmbedderRun>,
+    /// The newest embedding snapshot (what the learner's metrics and last checkpoint name).
+    last_embedding: Option<EmbeddingSnapshot>,
+}
+
+impl Lockstep {
+    /// The actors, and the learner and embedder opened on the run directory.
+    fn open(
+        config: &TrainConfig,
+        files: &RunOptions,
+        resume: Resume,
+        progress: &mut Progress,
+    ) -> Result<Self, TrainError> {
+        let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
+            .map(|id| ActorWorker::new(config, id, config.device))
+            .collect::<Result<_, _>>()?;
+        // each steps its share of a shared batch, as the learner service would tell it
+        for (actor, envs) in actors.iter_mut().zip(config.actor_envs()) {
+            actor.set_active_envs(envs);
+        }
+        let mut note = |line: String| progress.note(&line);
+        let learner = LearnerRun::open(config, Learner::for_run(config), resume, &mut note)
+            .map_err(lifecycle)?;
+        let mut lockstep = Self {
+            actors,
+            learner,
+            embedder: None,
+            last_embedding: None,
+        };
+        if config.algo.representation().needs_embedder() {
+            let (states, actions) = (
+                lockstep.actors[0].state_space().clone(),
+                lockstep.actors[0].action_space().clone(),
+            );
+            let mut trainer = EmbedderTrainer::for_run(config, &states, &actions);
+            let phases = progress.phases();
+            trainer.observe_pretraining(move |p| phases.report(None, &p.to_string()));
+            let (opened, first) = EmbedderRun::open(
+                config,
+                trainer,
+                Some(RunDir::new(&config.out).checkpoints().path()),
+                resume,
+                files.pretrain_from.as_deref(),
+                &mut |line| progress.note(&line),
+            )
+            .map_err(TrainError::Embedder)?;
+            lockstep.embedder = Some(opened);
+            if let Some(first) = first {
+                lockstep.new_embedding(first)?;
+            }
+        }
+        Ok(lockstep)
+    }
+
+    /// Hands a snapshot of the embedder's to every actor.
+    fn new_embedding(&mut self, snap: EmbeddingSnapshot) -> Result<(), TrainError> {
+        for a in &mut self.actors {
+            a.set_embedding(&snap)?;
+        }
+        self.last_embedding = Some(snap);
+        Ok(())
+    }
+
+    /// Actor `i`'s rollout: its transitions to the recording and the embedder, its fragments
+    /// to the learner, and each resulting snapshot back to every actor.
+    fn rollout(
+        &mut self,
+        i: usize,
+        recorder: Option<&mut Recorder>,
+        config: &TrainConfig,
+        progress: &mut Progress,
+    ) -> Result<(), TrainError> {
+        let rollout = self.actors[i].collect(config.rollout_len);
+        if let (Some(r), Some(steps)) = (recorder, &rollout.recorded) {
+            r.write(&rollout.transitions, steps)?;
+        }
+        let env_steps = self.learner.learner().env_steps();
+        if let Some(emb) = self.embedder.as_mut()
+            && let Some(snap) = embedder_step(
+                emb,
+                &rollout.transitions,
+                env_steps,
+                &self.actors,
+                config,
+                progress,
+            )?
+        {
+            self.new_embedding(snap)?;
+        }
+        let actor = &self.actors[i];
+        self.learner.learner_mut().observe_actor_steps(
+            actor.id(),
+            actor.incarnation(),
+            actor.env_steps(),
+        );
+        for fragment in rollout.fragments {
+            if let Ingested::Updated(report) = self.learner.learner_mut().ingest(fragment)? {
+                self.learner
+                    .record_update(&report, self.last_embedding.as_ref())
+                    .map_err(lifecycle)?;
+                progress.update(&report.metrics);
+                for a in &mut self.actors {
+                    a.set_policy(&report.snapshot)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Hands a rollout's transitions to the embedder as its service would receive them; returns
+/// the snapshot it published after them (checkpointed), if any.
+fn embedder_step(
+    emb: &mut EmbedderRun,
+    transitions: &jsae_wire::TransitionBatch,
+    learner_steps: u64,
+    actors: &[ActorWorker],
+    config: &TrainConfig,
+    progress: &mut Progress,
+) -> Result<Option<EmbeddingSnapshot>, TrainError> {
+    let trainer = emb.trainer_mut();
+    trainer
+        .ingest(transitions)
+        .map_err(|e| TrainError::Embedder(e.to_string()))?;
+    if !trainer.pretrained() {
+        let steps = actors.iter().map(ActorWorker::env_steps).sum::<u64>();
+        progress.phase(
+            Some(learner_steps.max(steps)),
+            &format!(
+                "random play for pre-training: {}/{} transitions",
+                trainer.replay_len().min(trainer.pretrain_budget()),
+                trainer.pretrain_budget()
+            ),
+        );
+    }
+    if !trainer.held() && config.embedding_held_at(learner_steps) {
+        // embedding.hold_from: the policy's last updates use one embedding
+        trainer.hold();
+    }
+    let Some(snap) = trainer
+        .poll()
+        .map_err(|e| TrainError::Embedder(e.to_string()))?
+    else {
+        return Ok(None);
+    };
+    if snap.version == 1 {
+        progress.note(&format!(
+            "embedding pre-trained on {} random transitions (model loss {:.4})",
+            trainer.replay_len(),
+            snap.model_loss
+        ));
+    }
+    // the latest weights, so that a stopped run can be resumed
+    emb.checkpoint(&snap).map_err(io(Path::new(&config.out)))?;
+    Ok(Some(snap))
 }

@@ -10,7 +10,9 @@ use burn::optim::{GradientsParams, ModuleOptimizer};
 use jsae_nn::RecordError;
 use jsae_wire::{ActionSpace, StateBatch, StateSpace};
 
-use crate::EmbeddingModel;
+use jsae_agent::EmbeddingModel;
+
+use crate::EmbeddingTraining;
 use crate::replay::Minibatch;
 
 /// A model the embedder trains from transitions and publishes as snapshots.

@@ -15,7 +15,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use jsae_net as net;
 use jsae_net::security::{Security, SecurityFlags};
 use jsae_net::streams::StreamLimit;
-use jsae_run_dir::{Checkpoints, Weights};
+use jsae_run_dir::{Checkpoints, Resume, Weights};
 use jsae_settings::{ListenFlag, RunFlags, TrainConfig};
 use jsae_telemetry::{EmbedderMetrics, EmbedderSample, MetricsFlag, MetricsRegistry};
 use jsae_wire::{self as wire, MAX_MESSAGE_BYTES, pb};
@@ -26,6 +26,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
 use crate::EmbedderTrainer;
+use crate::lifecycle::EmbedderRun;
 
 /// Transition batches queued between the service and the training thread: few, so that
 /// backpressure reaches the actors while a training round runs.
@@ -143,18 +144,6 @@ pub struct EmbedderOptions {
     pub security: Security,
 }
 
-/// The latest embedding checkpoint in `dir`, if any.
-pub fn latest_checkpoint(dir: &std::path::Path) -> Option<EmbeddingSnapshot> {
-    let (version, bytes) = Checkpoints::new(dir).read_latest(Weights::Embedding)?;
-    Some(EmbeddingSnapshot {
-        version,
-        bytes,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-        action_structure: None,
-    })
-}
-
 fn training_loop(
     config: &TrainConfig,
     states: &StateSpace,
@@ -164,68 +153,39 @@ fn training_loop(
     publish: &watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
     options: &EmbedderOptions,
 ) -> Result<(), String> {
-    let mut trainer = EmbedderTrainer::new(
-        config.embedding.clone(),
-        config.algo.representation(),
-        states,
-        actions,
-        config.seed,
-        config.device,
-    )
-    .with_action_motions(config.env.action_motions(&config.environment));
-    let mut resumed = false;
-    if let Some(dir) = &options.checkpoint_dir
-        && let Some(saved) = latest_checkpoint(dir)
-    {
-        match trainer.restore(&saved) {
-            Ok(()) => {
-                tracing::info!(
-                    "resuming from the embedding checkpoint, version {}",
-                    saved.version
-                );
-                publish.send_replace(Some(Arc::new(saved)));
-                resumed = true;
-            }
-            Err(e) => tracing::error!(
-                "the embedding checkpoint in {} does not fit this model ({e}); starting afresh",
-                dir.display()
-            ),
-        }
-    }
-    if !resumed
-        && let Some(source) = jsae_run_dir::init_source(config).map_err(|e| e.to_string())?
-    {
-        let parts = trainer.warm_start(&source)?;
-        tracing::info!(
-            "warm-started from {}: {}",
-            source.dir.display(),
-            parts.join(", ")
-        );
-    }
-    if !resumed && let Some(path) = &options.pretrain_from {
-        let done = crate::pretrain_from_recording(&mut trainer, path)?;
-        tracing::info!("{}", done.note);
-        publish_snapshot(done.snapshot, &trainer, publish, options);
+    let trainer = EmbedderTrainer::for_run(config, states, actions);
+    let (mut run, first) = EmbedderRun::open(
+        config,
+        trainer,
+        options.checkpoint_dir.as_deref(),
+        Resume::IfCheckpoint,
+        options.pretrain_from.as_deref(),
+        &mut |line| tracing::info!("{line}"),
+    )?;
+    if let Some(first) = first {
+        publish.send_replace(Some(Arc::new(first)));
     }
     while let Some(batch) = queue.blocking_recv() {
-        trainer.ingest(&batch).map_err(|e| e.to_string())?;
-        if !trainer.held() && held.load(Ordering::Relaxed) {
-            trainer.hold();
+        run.trainer_mut()
+            .ingest(&batch)
+            .map_err(|e| e.to_string())?;
+        if !run.trainer().held() && held.load(Ordering::Relaxed) {
+            run.trainer_mut().hold();
             tracing::info!(
                 "embedding held at v{}: no more updates (the learner asked, embedding.hold_from)",
-                trainer.stats().version
+                run.trainer().stats().version
             );
         }
-        if let Some(snap) = trainer.poll().map_err(|e| e.to_string())? {
-            publish_snapshot(snap, &trainer, publish, options);
+        if let Some(snap) = run.trainer_mut().poll().map_err(|e| e.to_string())? {
+            publish_snapshot(snap, &run, publish);
         }
-        let stats = trainer.stats();
+        let stats = run.trainer().stats();
         options.metrics.observe_batch(&EmbedderSample {
             transitions: stats.transitions,
             embedding_version: stats.version,
             losses: (stats.model_loss, stats.decoder_loss),
             queue_depth: queue.len(),
-            replay_len: trainer.replay_len(),
+            replay_len: run.trainer().replay_len(),
         });
     }
     Ok(())
@@ -234,31 +194,18 @@ fn training_loop(
 /// Logs a new snapshot, checkpoints it and hands it to the subscribers.
 fn publish_snapshot(
     snap: EmbeddingSnapshot,
-    trainer: &EmbedderTrainer,
+    run: &EmbedderRun,
     publish: &watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
-    options: &EmbedderOptions,
 ) {
     tracing::info!(
         "embedding v{} published ({} transitions, model loss {:.4}, decoder loss {:.4})",
         snap.version,
-        trainer.stats().transitions,
+        run.trainer().stats().transitions,
         snap.model_loss,
         snap.decoder_loss
     );
-    if let Some(dir) = &options.checkpoint_dir {
-        let ckpt = Checkpoints::new(dir);
-        for written in [
-            ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes),
-            ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes),
-        ] {
-            if let Err(e) = written {
-                tracing::warn!(
-                    "embedding checkpoint v{} in {}: {e}",
-                    snap.version,
-                    dir.display()
-                );
-            }
-        }
+    if let Err(e) = run.checkpoint(&snap) {
+        tracing::warn!("embedding checkpoint v{}: {e}", snap.version);
     }
     publish.send_replace(Some(Arc::new(snap)));
 }
@@ -411,7 +358,7 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
             };
             let listener = net::bind(&args.listen.listen).await?;
             jsae_telemetry::serve(&args.metrics, registry).await?;
-            println!("jsae-embedder listening on {}", listener.local_addr()?);
+            net::logging::announce_listening("jsae-embedder", listener.local_addr()?);
             Ok(serve(config, listener, options, shutdown).await?)
         },
         |()| {},

@@ -6,7 +6,7 @@
 use burn::optim::decay::WeightDecayConfig;
 use burn::optim::{AdamConfig, AdamWConfig, ModuleOptimizer};
 use jsae_run_dir::InitSource;
-use jsae_settings::Representation;
+use jsae_settings::{Representation, TrainConfig};
 use jsae_wire::{ActionSpace, EmbeddingSnapshot, StateSpace, TransitionBatch, ValidationError};
 use rand::SeedableRng;
 use rand::seq::SliceRandom;
@@ -16,7 +16,8 @@ use crate::pretrain_progress::{PretrainObserver, PretrainProgress};
 use crate::replay::Replay;
 use crate::representation::RepresentationModel;
 use crate::structure::ActionStructure;
-use crate::{EmbeddingConfig, EmbeddingModel};
+use crate::{EmbeddingConfig, EmbeddingTraining};
+use jsae_agent::EmbeddingModel;
 use jsae_nn::{self as nn, BurnDevice, DeviceKind};
 
 /// What the trainer has done so far.
@@ -65,6 +66,20 @@ impl std::fmt::Debug for OptimDebug {
 }
 
 impl EmbedderTrainer {
+    /// The trainer of a run: its embedding settings, representation, seed and device, with
+    /// the environment's action motions measured where it has them.
+    pub fn for_run(config: &TrainConfig, states: &StateSpace, actions: &ActionSpace) -> Self {
+        Self::new(
+            config.embedding.clone(),
+            config.algo.representation(),
+            states,
+            actions,
+            config.seed,
+            config.device,
+        )
+        .with_action_motions(config.env.action_motions(&config.environment))
+    }
+
     /// A trainer with a freshly initialised model of `representation`.
     pub fn new(
         config: EmbeddingConfig,

@@ -6,30 +6,32 @@
 //! entropy bonus, per-minibatch advantage normalisation, global grad-norm clipping, linear LR
 //! annealing) and publishes versioned policy snapshots.
 //!
-//! Layout: `policy` (Gaussian / categorical policy and critic), `gae`,
-//! `normalise` (running statistics, reward scaling), `ppo` (the learner), `fused` (the PPO
-//! minibatch loss and gradients on the host, checked against burn's autodiff; the default
-//! update path), `metrics`
-//! (named scalars into a sink: metrics.csv), `tensorboard` (the same scalars as TensorBoard event
-//! files; `RunMetrics` writes both), `record` (summary.json), `service` (the gRPC learner service), `synthetic` (random fragments for benchmarks and tests), `visits` (the exploration
-//! bonus's visit counts over all actors). The settings are
-//! `jsae_settings::PpoConfig`.
+//! Layout: `lifecycle` (the learner on its run directory: resume, warm start, checkpoints,
+//! metrics rows and the summary, for the service and the one-process driver alike),
+//! `policy_eval` (what the losses need of the policy beyond acting; the policy
+//! itself, its acting half, is `jsae_agent::Policy`), `gae`, `normalise` (running
+//! statistics, reward scaling), `ppo` (the learner), `fused` (the PPO minibatch loss and
+//! gradients on the host, checked against burn's autodiff; the default update path),
+//! `update_row` (an update's scalars for metrics.csv and TensorBoard, written by
+//! `jsae_run_dir`), `service` (the gRPC learner service), `synthetic` (random fragments for
+//! benchmarks and tests), `visits` (the exploration bonus's visit counts over all actors).
+//! The settings are `jsae_settings::PpoConfig`.
 
 #![forbid(unsafe_code)]
 
 pub mod fused;
 pub mod gae;
+pub mod lifecycle;
 pub mod normalise;
-mod policy;
+mod policy_eval;
 mod ppo;
-pub mod prior;
 pub mod service;
 pub mod synthetic;
 mod update_row;
 pub mod visits;
 
 pub use jsae_settings::{PpoConfig, UpdatePath};
-pub use policy::{Evaluation, Policy, PolicyHead, PolicyNet, policy_shape};
+pub use policy_eval::{Evaluation, PolicyEval};
 pub use ppo::{
     ClaimWentBack, Ingested, LagStats, Learner, LearnerError, LoggedPurchases, PretrainReport,
     StateError, UpdateMetrics, UpdateReport, clipped_surrogate_loss,

@@ -5,7 +5,7 @@ use jsae_wire::{ActionBatch, RolloutFragment};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::PolicyHead;
+use jsae_agent::PolicyHead;
 
 /// A fragment of `steps` random steps for inputs of width `x_dim` and `head`'s actions,
 /// produced under policy `version`: inputs in [-3, 3), rewards in [-1, 1), behaviour

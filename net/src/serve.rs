@@ -389,7 +389,7 @@ where
     let config = match config {
         Ok(c) => c,
         Err(reason) => {
-            eprintln!("{name}: {reason}");
+            crate::logging::report_failure(name, &reason);
             return ExitCode::from(2);
         }
     };
@@ -397,7 +397,7 @@ where
     let runtime = match runtime() {
         Ok(r) => r,
         Err(e) => {
-            eprintln!("{name}: {e}");
+            crate::logging::report_failure(name, &e.to_string());
             return ExitCode::FAILURE;
         }
     };
@@ -412,7 +412,7 @@ where
             ExitCode::SUCCESS
         }
         Err(failure) => {
-            eprintln!("{name}: {}", failure.message);
+            crate::logging::report_failure(name, &failure.message);
             ExitCode::from(failure.code)
         }
     }

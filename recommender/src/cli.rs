@@ -169,7 +169,7 @@ pub fn main(args: RecommenderArgs) -> std::process::ExitCode {
             let mut registry = jsae_telemetry::MetricsRegistry::default();
             let metrics = jsae_telemetry::RecommenderMetrics::register(&mut registry);
             jsae_telemetry::serve(&args.metrics, registry).await?;
-            println!("jsae recommender listening on {}", listener.local_addr()?);
+            jsae_net::logging::announce_listening("jsae recommender", listener.local_addr()?);
             let rec = Arc::new(rec);
             Ok(serve(rec, listener, sources, metrics, security, shutdown).await?)
         },

@@ -20,7 +20,6 @@
 pub mod baseline;
 pub mod cli;
 pub mod grpc;
-pub mod logs;
 pub mod offline;
 pub mod scoring;
 mod session_wire;
@@ -29,7 +28,6 @@ pub mod submit;
 
 pub use cli::{RecommenderArgs, main};
 pub use grpc::{RecommenderService, serve};
-pub use logs::logged_purchases;
 pub use scoring::{MAX_HISTORY, Recommendation, Recommender};
 pub use session_wire::{session_from_wire, session_to_wire};
 pub use sources::{WeightSources, load_run};

@@ -259,7 +259,7 @@ impl Recommender {
                 ));
             };
             embedding.embed_states(&batch, &mut x);
-            let e = policy.head_outputs(&x);
+            let e = policy.head_outputs(&x, weights.prior());
             // score: minus the Euclidean distance, nearest first
             let nearest = nearest.k_nearest(&e, k, items);
             Ok(Ranking {
@@ -269,7 +269,7 @@ impl Recommender {
             })
         } else {
             batch.write_features(&self.states, &mut x);
-            let logits = policy.head_outputs(&x);
+            let logits = policy.head_outputs(&x, weights.prior());
             Ok(Ranking {
                 items: most_likely(&logits, items, k),
                 policy_version,

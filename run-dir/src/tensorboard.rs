@@ -1,51 +1,40 @@
 //! The run's metrics for TensorBoard: every scalar of a metrics row into event files under
 //! `DIR/tensorboard/`, tagged with its metrics.csv column name and stepped by env steps, and
-//! the final evaluation under `eval/`. The event-file format is the tensorboard-rs crate's.
+//! the final evaluation under `eval/` (the files: `event_file`).
 
 use std::io;
 use std::path::Path;
 
-use tensorboard_rs::summary_writer::SummaryWriter;
-
+use crate::event_file::EventFile;
 use crate::metrics::{CsvMetrics, MetricsSink, Scalar};
 
 /// The column a row's step is read from.
 const STEP: &str = "env_steps";
 
 /// Rows of scalars as TensorBoard scalars.
+#[derive(Debug)]
 pub struct TensorBoardMetrics {
-    writer: SummaryWriter,
-    last_step: usize,
-}
-
-impl std::fmt::Debug for TensorBoardMetrics {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("TensorBoardMetrics")
-            .field("last_step", &self.last_step)
-            .finish()
-    }
+    file: EventFile,
+    last_step: u64,
 }
 
 impl TensorBoardMetrics {
     /// A new event file in `dir` (created if missing; the files of an earlier process stay,
     /// and TensorBoard reads them all).
     pub fn create(dir: &Path) -> io::Result<Self> {
-        // the crate's writer panics where the folder cannot be made: make it here first
-        std::fs::create_dir_all(dir)?;
         Ok(Self {
-            writer: SummaryWriter::new(dir),
+            file: EventFile::create(dir)?,
             last_step: 0,
         })
     }
 
-    fn write(&mut self, prefix: &str, step: usize, row: &[Scalar]) {
-        for (name, value) in row {
-            if let Some(v) = value.filter(|v| v.is_finite()) {
-                self.writer
-                    .add_scalar(&format!("{prefix}{name}"), v as f32, step);
-            }
-        }
-        self.writer.flush();
+    /// The row's finite values, tagged `PREFIX+column`, as one event at `step`.
+    fn write(&mut self, prefix: &str, step: u64, row: &[Scalar]) -> io::Result<()> {
+        let scalars = row.iter().filter_map(|(name, value)| {
+            let v = value.filter(|v| v.is_finite())?;
+            Some((format!("{prefix}{name}"), v as f32))
+        });
+        self.file.write_scalars(step, scalars)
     }
 }
 
@@ -55,15 +44,13 @@ impl MetricsSink for TensorBoardMetrics {
             .iter()
             .find(|(name, _)| *name == STEP)
             .and_then(|(_, v)| *v)
-            .map_or(self.last_step, |v| v as usize);
+            .map_or(self.last_step, |v| v as u64);
         self.last_step = step;
-        self.write("", step, row);
-        Ok(())
+        self.write("", step, row)
     }
 
     fn record_eval(&mut self, env_steps: u64, row: &[Scalar]) -> io::Result<()> {
-        self.write("eval/", env_steps as usize, row);
-        Ok(())
+        self.write("eval/", env_steps, row)
     }
 }
 

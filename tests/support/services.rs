@@ -108,9 +108,8 @@ pub async fn start_learner_secured(
 ) -> Service<Option<Summary>> {
     let (stop, signal) = stop_signal();
     let options = LearnerOptions {
-        out: config.out.clone(),
         embedder,
-        logged: jsae_recommender::logged_purchases(config)
+        logged: jsae_cli::logs::logged_purchases(config)
             .expect("the logged purchases")
             .map(std::sync::Arc::new),
         resume: false,

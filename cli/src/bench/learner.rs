@@ -13,7 +13,8 @@
 
 use std::time::Instant;
 
-use jsae_learner::{Ingested, Learner, PolicyHead, UpdatePath, policy_shape};
+use jsae_agent::{PolicyHead, policy_shape};
+use jsae_learner::{Ingested, Learner, UpdatePath};
 use jsae_nn::DeviceKind;
 use jsae_settings::{Algo, EnvName, TrainConfig};
 use jsae_wire::{RolloutFragment, StateSpace};

@@ -18,8 +18,8 @@ use jsae_nn::{BurnDevice, DeviceKind};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
+use jsae_agent::policy_shape;
 use jsae_envs::EnvName;
-use jsae_learner::policy_shape;
 use jsae_settings::{Algo, TrainConfig};
 
 use jsae_actor::worker::ActorWorker;
@@ -71,7 +71,7 @@ fn time_inference(worker: &ActorWorker, batch: usize, repeats: usize, device: De
         a.clear();
         logp.clear();
         embedding.embed_states(&states, x);
-        policy.act(x, false, &mut rng, e, logp);
+        policy.act(x, None, false, &mut rng, e, logp);
         if let jsae_wire::ActionBatch::Continuous { data, .. } = &*e {
             embedding.decode(data, a);
         }

@@ -8,8 +8,7 @@
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use jsae_embedder::EmbeddingModel;
-use jsae_learner::{Policy, policy_shape};
+use jsae_agent::{EmbeddingModel, Policy, PolicyPrior, policy_shape};
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_settings::{Algo, EnvName, TrainConfig};
 use jsae_wire::pb;
@@ -61,7 +60,7 @@ fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>
     let policy = Policy::new(&config.ppo, input, head, &mut rng, &device);
     rec.set_policy(&PolicySnapshot {
         version: 1,
-        bytes: policy.to_bytes()?,
+        bytes: PolicyPrior::new(&config.ppo).encode(&policy)?,
     })
     .map_err(anyhow::Error::msg)?;
     if algo.representation().needs_embedder() {

@@ -148,7 +148,6 @@ async fn learner_grpc(config: &TrainConfig, frags: &[RolloutFragment]) -> anyhow
     let url = format!("http://{}", listener.local_addr()?);
     let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
     let options = LearnerOptions {
-        out: config.out.clone(),
         embedder: None,
         logged: None,
         resume: false,
@@ -193,7 +192,7 @@ fn learner_in_process(config: &TrainConfig, frags: &[RolloutFragment]) -> f64 {
         let mut learner = Learner::new(
             ppo,
             8,
-            jsae_learner::PolicyHead::Gaussian { dim: 2 },
+            jsae_agent::PolicyHead::Gaussian { dim: 2 },
             steps,
             seed,
             device,

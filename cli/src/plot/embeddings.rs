@@ -7,7 +7,7 @@
 use std::ops::Range;
 use std::path::PathBuf;
 
-use jsae_embedder::Embedding;
+use jsae_agent::Embedding;
 use jsae_envs::EnvName;
 use jsae_envs::gridworld::{Gridworld, action_motions};
 use jsae_experiments::figures::{Drawing, reason};

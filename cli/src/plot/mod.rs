@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::Args;
-use jsae_embedder::Embedding;
+use jsae_agent::Embedding;
 use jsae_experiments::figures::{self, Drawing};
 use jsae_run_dir::MetricsTable;
 use jsae_run_dir::RunDir;

@@ -3,7 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
-use jsae_embedder::EmbeddingModel;
+use jsae_agent::EmbeddingModel;
 use jsae_nn::BurnDevice;
 use jsae_run_dir::Summary;
 use jsae_run_dir::{RunDir, Weights};

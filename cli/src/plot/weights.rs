@@ -7,7 +7,7 @@
 
 use std::io;
 
-use jsae_embedder::Embedding;
+use jsae_agent::Embedding;
 use jsae_nn::{BurnDevice, RecordError};
 use jsae_run_dir::Summary;
 use jsae_run_dir::{RunDir, Weights, read_weights};

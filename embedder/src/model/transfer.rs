@@ -8,7 +8,7 @@ use burn::nn::Linear;
 use burn::tensor::Tensor;
 use jsae_nn::Mlp;
 
-use super::EmbeddingModel;
+use jsae_agent::EmbeddingModel;
 
 fn same_linear(a: &Option<Linear>, b: &Option<Linear>) -> bool {
     match (a, b) {
@@ -37,40 +37,38 @@ fn same_mlp(a: &Option<Mlp>, b: &Option<Mlp>) -> bool {
     }
 }
 
-impl EmbeddingModel {
-    /// Copies every part of `source` whose shape matches this model's (both of the same
-    /// representation); returns the names of the parts copied.
-    pub fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str> {
-        let (to, from) = (&mut self.net, &source.net);
-        let mut copied = Vec::new();
-        macro_rules! take {
-            ($field:ident, $same:expr) => {
-                if $same(&to.$field, &from.$field) {
-                    to.$field = from.$field.clone();
-                    copied.push(stringify!($field));
-                }
-            };
-        }
-        take!(phi_table, same_table);
-        take!(phi_linear, same_linear);
-        take!(g_table, same_table);
-        take!(g_linear, same_linear);
-        take!(transition_in, same_linear);
-        take!(transition, same_linear);
-        take!(decoder, same_mlp);
-        take!(state_decoder, same_linear);
-        take!(action_decoder, same_linear);
-        take!(inverse, same_mlp);
-        take!(
-            inverse_log_scale,
-            |a: &Option<Param<Tensor<1>>>, b: &Option<Param<Tensor<1>>>| a.is_some() && b.is_some()
-        );
-        let same_norm = matches!((&to.state_norm, &from.state_norm), (Some(_), Some(_)))
-            && self.states == source.states;
-        if same_norm {
-            to.state_norm = from.state_norm.clone();
-            copied.push("state_norm");
-        }
-        copied
+/// Copies every part of `source` whose shape matches `model`'s (both of the same
+/// representation); returns the names of the parts copied.
+pub(super) fn warm_start(model: &mut EmbeddingModel, source: &EmbeddingModel) -> Vec<&'static str> {
+    let same_states = model.state_space() == source.state_space();
+    let (to, from) = (model.net_mut(), source.net());
+    let mut copied = Vec::new();
+    macro_rules! take {
+        ($field:ident, $same:expr) => {
+            if $same(&to.$field, &from.$field) {
+                to.$field = from.$field.clone();
+                copied.push(stringify!($field));
+            }
+        };
     }
+    take!(phi_table, same_table);
+    take!(phi_linear, same_linear);
+    take!(g_table, same_table);
+    take!(g_linear, same_linear);
+    take!(transition_in, same_linear);
+    take!(transition, same_linear);
+    take!(decoder, same_mlp);
+    take!(state_decoder, same_linear);
+    take!(action_decoder, same_linear);
+    take!(inverse, same_mlp);
+    take!(
+        inverse_log_scale,
+        |a: &Option<Param<Tensor<1>>>, b: &Option<Param<Tensor<1>>>| a.is_some() && b.is_some()
+    );
+    let same_norm = matches!((&to.state_norm, &from.state_norm), (Some(_), Some(_))) && same_states;
+    if same_norm {
+        to.state_norm = from.state_norm.clone();
+        copied.push("state_norm");
+    }
+    copied
 }

@@ -176,9 +176,10 @@ pub(super) fn distance_cross_entropy(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::{cross_entropy, uniform_linear};
+    use crate::model::cross_entropy;
     use burn::module::Param;
     use burn::tensor::{Device, Int, TensorData};
+    use jsae_agent::embedding::uniform_linear;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
 

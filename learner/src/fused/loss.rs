@@ -6,10 +6,9 @@
 use jsae_nn::host::math;
 use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
-use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts};
-use crate::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
-use crate::ppo::LOG_RATIO_MAX;
-use crate::prior::CountPrior;
+use super::{FusedWork, HostMinibatch, HostPolicy, LOG_RATIO_MAX, LossConfig, LossParts};
+use jsae_agent::CountPrior;
+use jsae_agent::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
 
 /// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r =
 /// exp(min(log_ratio, LOG_RATIO_MAX))`, and its derivative with respect to the

@@ -2,7 +2,7 @@
 //! (`loss`), with the dense products on a GEMM kernel and the MLPs' buffers reused between
 //! minibatches ([`jsae_nn::host`]), instead of a graph of ~30 small tensor operations through
 //! burn's autodiff. Same model, same parameters: [`HostPolicy`] is read from the burn
-//! [`Policy`] and written back into it ([`Policy::load_host`]). The host keeps the weights
+//! [`Policy`] and written back into it ([`HostParams::write_into`]). The host keeps the weights
 //! of every layer after the first as `[out, in]` (burn's `Linear` weights are `[in, out]`),
 //! and the gradients come out in the host's layout; [`jsae_nn::HostMlp::weight`] reads
 //! either in burn's.
@@ -21,7 +21,14 @@ mod tests;
 use jsae_nn::{HostInput, HostMlp, MlpWork};
 use ndarray::Array1;
 
-use crate::policy::{Policy, PolicyHead};
+use jsae_agent::{CountPrior, Policy, PolicyHead};
+
+/// The largest log-ratio the surrogate takes as it is: beyond it the ratio is held at
+/// `exp(20)` (about 4.9e8) and its gradient is 0, so a behaviour log-probability far below
+/// the policy's own (which PPO's clip leaves unbounded where the advantage is negative) can
+/// neither overflow the ratio to infinity nor dominate the update. Real batches stay far
+/// below it (their ratios are within a few tenths of 1).
+pub const LOG_RATIO_MAX: f32 = 20.0;
 
 /// The policy's trainable parameters on the host (and, for gradients, their layout).
 #[derive(Debug, Clone, PartialEq)]
@@ -38,6 +45,16 @@ pub struct HostParams {
 pub type HostGrads = HostParams;
 
 impl HostParams {
+    /// Writes these parameters into `policy` (after the host update trained them), keeping
+    /// each parameter's id and the observation statistics.
+    pub fn write_into(&self, policy: &mut Policy) {
+        policy.set_host_weights(
+            &self.actor,
+            &self.critic,
+            self.log_std.as_slice().unwrap_or(&[]),
+        );
+    }
+
     /// Zeros in this shape.
     pub fn zeros_like(&self) -> Self {
         Self {
@@ -103,7 +120,7 @@ pub struct HostPolicy {
     /// The log-std up to which the entropy bonus counts.
     pub entropy_log_std_max: f32,
     /// The prior the categorical logits add (`ppo.logged_prior`), not trained.
-    pub prior: Option<std::sync::Arc<crate::prior::CountPrior>>,
+    pub prior: Option<std::sync::Arc<CountPrior>>,
 }
 
 /// One minibatch, or one run of a minibatch's rows ([`minibatch_parts`]), as `ppo::update`
@@ -239,8 +256,9 @@ impl FusedWork {
 }
 
 impl HostPolicy {
-    /// The trainable parameters of `policy`, copied to the host.
-    pub fn from_policy(policy: &Policy) -> Self {
+    /// The trainable parameters of `policy`, copied to the host, with the prior its logits
+    /// add.
+    pub fn from_policy(policy: &Policy, prior: Option<std::sync::Arc<CountPrior>>) -> Self {
         let (actor, critic, log_std) = policy.parts();
         Self {
             params: HostParams {
@@ -251,7 +269,7 @@ impl HostPolicy {
             head: policy.head(),
             tanh_mean: policy.tanh_mean(),
             entropy_log_std_max: policy.entropy_log_std_max(),
-            prior: policy.prior().cloned(),
+            prior,
         }
     }
 

@@ -2,8 +2,8 @@
 //! for each head, with and without the tanh mean and the value clip.
 
 use super::*;
-use crate::PpoConfig;
 use crate::ppo::clipped_surrogate_loss;
+use crate::{PolicyEval, PpoConfig};
 use burn::tensor::Tensor;
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_wire::ActionBatch;
@@ -53,11 +53,11 @@ fn check_with(
     let mut rng = ChaCha8Rng::seed_from_u64(11);
     let mut policy = Policy::new(&config, input, head, &mut rng, &device);
     if wide_actor {
-        let mut host = HostPolicy::from_policy(&policy);
+        let mut host = HostPolicy::from_policy(&policy, None);
         if let Some(skip) = host.params.actor.skip.as_mut() {
             skip.mapv_inplace(|_| rng.random_range(-0.3..0.3));
         }
-        policy.load_host(&host.params);
+        host.params.write_into(&mut policy);
     }
     let b = 48;
     let x: Vec<f32> = (0..b * input)
@@ -136,7 +136,7 @@ fn check_with(
     let burn_loss = jsae_nn::to_vec(loss.clone())[0];
     let grads = loss.backward();
 
-    let host = HostPolicy::from_policy(&policy);
+    let host = HostPolicy::from_policy(&policy, None);
     let x_host = Array2::from_shape_vec((b, input), x).expect("shape");
     let (continuous, discrete) = match &actions {
         ActionBatch::Continuous { data, .. } => (data.as_slice(), &[][..]),
@@ -252,7 +252,7 @@ fn the_entropy_bonus_counts_the_std_up_to_its_cap() {
         dim,
         data: vec![0.0; dim],
     };
-    let at = |log_std: f32| (0.5 + crate::policy::HALF_LOG_2PI + log_std) * dim as f32;
+    let at = |log_std: f32| (0.5 + jsae_agent::policy::HALF_LOG_2PI + log_std) * dim as f32;
     let cap = jsae_settings::EMBEDDED_ENTROPY_LOG_STD_MAX;
     // (tanh mean, the setting, initial log-std, the entropy the bonus sees)
     for (tanh_mean, setting, init_log_std, want) in [
@@ -333,7 +333,7 @@ fn one_hot_parts(wide_actor: bool) {
     let head = PolicyHead::Categorical { n };
     let mut rng = ChaCha8Rng::seed_from_u64(5);
     let policy = Policy::new(&config, input, head, &mut rng, &device);
-    let host = HostPolicy::from_policy(&policy);
+    let host = HostPolicy::from_policy(&policy, None);
     let mut x = Array2::zeros((b, input));
     for r in 0..b {
         x[[r, rng.random_range(0..input)]] = 1.0;

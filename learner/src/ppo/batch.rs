@@ -12,7 +12,7 @@ use crate::PpoConfig;
 use crate::fused::{HostMinibatch, HostPolicy};
 use crate::gae::{GaeStep, gae};
 use crate::normalise::RewardScaler;
-use crate::policy::Policy;
+use jsae_agent::Policy;
 
 /// A batch flattened for minibatching: `[n]` rows of x, actions, old log-probs, advantages,
 /// returns and old values.
@@ -144,7 +144,7 @@ impl Batch {
             next_purchase: Vec::new(),
         };
         let purchase_items = match policy.head() {
-            crate::policy::PolicyHead::Categorical { n }
+            jsae_agent::PolicyHead::Categorical { n }
                 if config.next_purchase_coef > 0.0 && x_dim > n =>
             {
                 Some(n)

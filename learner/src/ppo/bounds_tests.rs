@@ -9,14 +9,10 @@ use rand_chacha::ChaCha8Rng;
 
 use super::Learner;
 use crate::PpoConfig;
-use crate::fused::HostPolicy;
-use crate::policy::{LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
+use jsae_agent::policy::{LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
 
 fn flat(learner: &Learner) -> Vec<f32> {
-    HostPolicy::from_policy(learner.policy())
-        .params
-        .slices()
-        .concat()
+    learner.host_policy().params.slices().concat()
 }
 
 #[test]
@@ -46,9 +42,14 @@ fn every_sampled_log_prob_lies_in_the_behaviour_range() {
         };
         let mut logp = Vec::new();
         for _ in 0..25 {
-            learner
-                .policy()
-                .act(&x, false, &mut rng, &mut actions, &mut logp);
+            learner.policy().act(
+                &x,
+                learner.prior(),
+                false,
+                &mut rng,
+                &mut actions,
+                &mut logp,
+            );
         }
         assert_eq!(logp.len(), 25 * 4096);
         let (min, max) = logp

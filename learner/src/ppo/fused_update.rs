@@ -44,7 +44,7 @@ impl FusedState {
 
 impl Learner {
     pub(super) fn optimise_fused(&mut self, batch: &Batch, lr: f64) -> UpdateMetrics {
-        let mut host = HostPolicy::from_policy(&self.policy);
+        let mut host = HostPolicy::from_policy(&self.policy, self.prior.shared());
         let x = &batch.input;
         let (config, rng, state) = (&self.config, &mut self.rng, &mut self.fused);
         // on one of rayon's threads, so the per-minibatch joins inside stay cheap
@@ -55,7 +55,7 @@ impl Learner {
                 order.clone()
             })
         });
-        self.policy.load_host(&host.params);
+        host.params.write_into(&mut self.policy);
         metrics
     }
 }

@@ -41,17 +41,18 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::PpoConfig;
+use crate::fused::HostPolicy;
 use crate::normalise::RewardScaler;
-use crate::policy::{Policy, PolicyHead};
 use crate::visits::VisitBonus;
 use batch::{Batch, BatchBuffers};
 pub use credits::ClaimWentBack;
 use credits::StepCredits;
 use fused_update::FusedState;
+use jsae_agent::{CountPrior, Policy, PolicyHead, PolicyPrior};
 pub use pretrain::{LoggedPurchases, PretrainReport};
 pub use report::{Ingested, LagStats, LearnerError, UpdateMetrics, UpdateReport};
 pub use state_codec::StateError;
-pub use update::{LOG_RATIO_MAX, clipped_surrogate_loss};
+pub use update::clipped_surrogate_loss;
 
 /// Adam's epsilon, on both update paths.
 const ADAM_EPSILON: f32 = 1e-5;
@@ -69,6 +70,8 @@ impl std::fmt::Debug for Adam {
 pub struct Learner {
     config: PpoConfig,
     policy: Policy,
+    /// The count prior the policy's logits add (`ppo.logged_prior`), beside it.
+    prior: PolicyPrior,
     inference_device: Device,
     optim: Adam,
     fused: FusedState,
@@ -114,6 +117,7 @@ impl Learner {
             .reward_scaling
             .then(|| RewardScaler::new(config.gamma, 10.0));
         Self {
+            prior: PolicyPrior::new(&config),
             config,
             policy,
             inference_device: device.device(),
@@ -145,7 +149,7 @@ impl Learner {
     /// ([`jsae_settings::TrainConfig::round_steps`]).
     pub fn for_run(config: &jsae_settings::TrainConfig) -> Self {
         let (states, actions) = config.spaces();
-        let (input, head) = crate::policy_shape(config, &states, &actions);
+        let (input, head) = jsae_agent::policy_shape(config, &states, &actions);
         let mut ppo = config.ppo.clone();
         ppo.batch_steps = config.round_steps();
         let mut learner = Self::new(
@@ -236,6 +240,16 @@ impl Learner {
         &self.policy
     }
 
+    /// The count prior the policy's logits add (None unless `ppo.logged_prior` and counted).
+    pub fn prior(&self) -> Option<&CountPrior> {
+        self.prior.get()
+    }
+
+    /// The policy on the host, with its prior, as the fused update trains it.
+    pub fn host_policy(&self) -> HostPolicy {
+        HostPolicy::from_policy(&self.policy, self.prior.shared())
+    }
+
     /// The space fragments' actions must be in.
     pub fn head(&self) -> PolicyHead {
         self.policy.head()
@@ -246,9 +260,8 @@ impl Learner {
         Ok(PolicySnapshot {
             version: self.version,
             bytes: self
-                .policy
-                .for_inference(&self.inference_device)
-                .to_bytes()?,
+                .prior
+                .encode(&self.policy.for_inference(&self.inference_device))?,
         })
     }
 
@@ -257,7 +270,7 @@ impl Learner {
     /// metrics.csv goes on numbering. The optimiser state starts afresh ([`Self::resume`]
     /// restores it too, from a checkpoint).
     pub fn restore(&mut self, snapshot: &PolicySnapshot) -> Result<(), RecordError> {
-        self.policy.load_bytes(&snapshot.bytes)?;
+        self.prior.decode(&mut self.policy, &snapshot.bytes)?;
         self.version = snapshot.version;
         self.updates = self.updates.max(snapshot.version);
         self.optim = Adam(AdamConfig::new().with_epsilon(ADAM_EPSILON).init());
@@ -268,7 +281,7 @@ impl Learner {
     /// Starts from another run's policy weights (`--init-from`): loads them (their shape
     /// must match this run's policy) and keeps this run's version line and counters.
     pub fn warm_start(&mut self, policy_bytes: &[u8]) -> Result<(), RecordError> {
-        self.policy.load_bytes(policy_bytes)?;
+        self.prior.decode(&mut self.policy, policy_bytes)?;
         self.fused = FusedState::new();
         Ok(())
     }

@@ -1,5 +1,5 @@
 //! Readying the recommender's categorical policy from logged purchases before it plays: the
-//! count prior its logits add (`ppo.logged_prior`, [`crate::prior`]) and pre-training
+//! count prior its logits add (`ppo.logged_prior`, [`jsae_agent::prior`]) and pre-training
 //! (`ppo.logged_pretrain_epochs`): the next-purchase cross-entropy alone over the steps of
 //! the sessions the simulator's model is built from (the held-out ones never), through the
 //! PPO update's own minibatches, clipping and Adam on the fused path. With no advantages and
@@ -16,8 +16,7 @@ use super::batch::{Batch, NetworkInput};
 use super::fused_update::{FusedState, epochs};
 use super::{Learner, LearnerError};
 use crate::fused::HostPolicy;
-use crate::policy::PolicyHead;
-use crate::prior::CountPrior;
+use jsae_agent::{CountPrior, PolicyHead};
 
 /// Logged purchases a fresh policy can learn from before it plays (the recommender's
 /// sessions without the held-out ones, as the environment reads them; the caller, which
@@ -128,7 +127,7 @@ impl Learner {
         });
         let prior = CountPrior::count(x_dim, n, rows.iter().map(|(c, k)| (c.as_slice(), *k)));
         let contexts = prior.contexts();
-        self.policy.set_prior(prior);
+        self.prior.set(prior, &self.policy);
         Ok(contexts)
     }
 
@@ -155,7 +154,7 @@ impl Learner {
         config.next_purchase_coef = 1.0;
         config.norm_adv = false;
         config.target_kl = None;
-        let mut host = HostPolicy::from_policy(&self.policy);
+        let mut host = HostPolicy::from_policy(&self.policy, self.prior.shared());
         let mut state = FusedState::new();
         let lr = self.config.logged_pretrain_lr as f32;
         let rng = &mut self.rng;
@@ -182,7 +181,7 @@ impl Learner {
                 })
                 .collect()
         });
-        self.policy.load_host(&host.params);
+        host.params.write_into(&mut self.policy);
         // PPO's own moments start afresh
         self.fused = FusedState::new();
         Ok(PretrainReport {
@@ -287,7 +286,7 @@ mod tests {
     use super::super::Learner;
     use crate::PpoConfig;
     use crate::fused::HostPolicy;
-    use crate::policy::PolicyHead;
+    use jsae_agent::PolicyHead;
 
     /// 6 items and "none": the item bought after (a, b) is `(a + 2 b + 1) mod 6`, which no
     /// sum of a score per item and a score per last item gives; a pair feature tells the
@@ -330,7 +329,7 @@ mod tests {
     fn pretraining_learns_the_logged_next_purchase_and_leaves_the_critic() {
         let (states, space, next) = logged();
         let mut l = learner(60);
-        let critic = HostPolicy::from_policy(l.policy()).params.critic;
+        let critic = l.host_policy().params.critic;
         let r = l
             .pretrain_next_purchase(&states, &space, &next)
             .expect("pre-trains");
@@ -341,10 +340,10 @@ mod tests {
             r.first_epoch_loss,
             r.last_epoch_loss
         );
-        assert_eq!(HostPolicy::from_policy(l.policy()).params.critic, critic);
+        assert_eq!(l.host_policy().params.critic, critic);
         // the greedy action of every pair is the item bought after it
         let x = states.features(&space);
-        let logits = l.policy().head_outputs(&x[..36 * 14]);
+        let logits = l.policy().head_outputs(&x[..36 * 14], l.prior());
         for (row, &t) in logits.chunks_exact(6).zip(&next) {
             let best = (0..6).max_by(|&i, &j| row[i].total_cmp(&row[j]));
             assert_eq!(best, Some(t as usize), "{row:?}");
@@ -385,13 +384,15 @@ mod tests {
         let x = &x[..36 * 14];
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
         let (mut greedy, mut logp) = (ActionBatch::Discrete(Vec::new()), Vec::new());
-        l.policy().act(x, true, &mut rng, &mut greedy, &mut logp);
+        l.policy()
+            .act(x, l.prior(), true, &mut rng, &mut greedy, &mut logp);
         assert_eq!(greedy, ActionBatch::Discrete(next[..36].to_vec()));
 
         // sampled actions: the fused loss's log-probabilities are the actor's (the sparse rows'
         // columns are read as the dense rows' non-zero ones: prior.rs's tests)
         let (mut sampled, mut logp) = (ActionBatch::Discrete(Vec::new()), Vec::new());
-        l.policy().act(x, false, &mut rng, &mut sampled, &mut logp);
+        l.policy()
+            .act(x, l.prior(), false, &mut rng, &mut sampled, &mut logp);
         let ActionBatch::Discrete(a) = &sampled else {
             unreachable!()
         };
@@ -427,7 +428,7 @@ mod tests {
             host.loss_and_grads(&[mb], cfg, &mut work);
             work.log_ratio().iter().fold(0.0f32, |m, r| m.max(r.abs()))
         }
-        let mut host = HostPolicy::from_policy(l.policy());
+        let mut host = l.host_policy();
         let r = max_log_ratio(&host, HostInput::Dense(view), a, &logp, &zeros);
         assert!(r < 1e-4, "{r}");
         host.prior = None;
@@ -435,13 +436,16 @@ mod tests {
         assert!(without > 0.5, "the prior is most of the logits: {without}");
 
         // a policy loaded from the bytes acts with the same prior
-        let bytes = l.policy().to_bytes().expect("bytes");
+        let bytes = l.snapshot().expect("bytes").bytes;
         let mut other = with_prior(9);
         other
             .restore(&PolicySnapshot { version: 1, bytes })
             .expect("loads");
-        assert!(other.policy().prior().is_some());
-        assert_eq!(other.policy().head_outputs(x), l.policy().head_outputs(x));
+        assert!(other.prior().is_some());
+        assert_eq!(
+            other.policy().head_outputs(x, other.prior()),
+            l.policy().head_outputs(x, l.prior())
+        );
     }
 
     #[test]

@@ -11,10 +11,9 @@ use rand_chacha::ChaCha8Rng;
 
 use super::Learner;
 use super::credits::StepCredits;
-use crate::fused::HostPolicy;
-use crate::policy::PolicyHead;
 use crate::visits::VisitBonus;
 use crate::{PpoConfig, UpdatePath};
+use jsae_agent::PolicyHead;
 
 const STEPS: usize = 64;
 const X_DIM: usize = 5;
@@ -22,10 +21,7 @@ const HEAD: PolicyHead = PolicyHead::Gaussian { dim: 2 };
 const ALLOWANCE: u64 = 1_000;
 
 fn flat(learner: &Learner) -> Vec<f32> {
-    HostPolicy::from_policy(learner.policy())
-        .params
-        .slices()
-        .concat()
+    learner.host_policy().params.slices().concat()
 }
 
 fn learner(update: UpdatePath, seed: u64) -> Learner {

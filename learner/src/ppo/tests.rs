@@ -6,14 +6,13 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use super::Learner;
-use crate::fused::HostPolicy;
-use crate::policy::PolicyHead;
 use crate::{PpoConfig, UpdatePath};
+use jsae_agent::PolicyHead;
 
 const STEPS: usize = 64;
 
 fn flat(learner: &Learner) -> Vec<f32> {
-    let host = HostPolicy::from_policy(learner.policy());
+    let host = learner.host_policy();
     host.params.slices().concat()
 }
 
@@ -132,7 +131,7 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
     };
     let head = PolicyHead::Categorical { n };
     let mut learner = Learner::new(config, x_dim, head, 0, 7, DeviceKind::Flex);
-    let start = HostPolicy::from_policy(learner.policy());
+    let start = learner.host_policy();
     assert!(
         start.params.actor.w[0]
             .rows()
@@ -157,7 +156,7 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
         learner.ingest(f).expect("ingests");
     }
     assert_eq!(learner.updates(), 1);
-    let end = HostPolicy::from_policy(learner.policy());
+    let end = learner.host_policy();
     for (net, w) in [
         ("actor", &end.params.actor.w[0]),
         ("critic", &end.params.critic.w[0]),
@@ -182,7 +181,7 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
     let mut x = vec![0.0; 5 * x_dim];
     let mut buckets = Vec::new();
     two_factors(&mut x, size, pair_buckets, &mut buckets, &mut rng);
-    let host = learner.policy().head_outputs(&x);
+    let host = learner.policy().head_outputs(&x, None);
     let width = x_dim + pair_buckets;
     let mut dense = vec![0.0; 5 * width];
     for (r, (row, bucket)) in x.chunks(x_dim).zip(&buckets).enumerate() {

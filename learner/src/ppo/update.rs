@@ -13,7 +13,9 @@ use rand::seq::SliceRandom;
 
 use super::batch::Batch;
 use super::{Learner, UpdateMetrics};
-use crate::policy::{Policy, PolicyHead};
+use crate::PolicyEval;
+use crate::fused::LOG_RATIO_MAX;
+use jsae_agent::{Policy, PolicyHead};
 use jsae_settings::UpdatePath;
 use jsae_wire::ActionBatch;
 
@@ -131,13 +133,6 @@ pub(crate) fn next_purchase_nll(
     let mask = nn::tensor1(mask, &policy.device().clone());
     Some((logp * mask).sum().neg().div_scalar(targets.len() as f32))
 }
-
-/// The largest log-ratio the surrogate takes as it is: beyond it the ratio is held at
-/// `exp(20)` (about 4.9e8) and its gradient is 0, so a behaviour log-probability far below
-/// the policy's own (which PPO's clip leaves unbounded where the advantage is negative) can
-/// neither overflow the ratio to infinity nor dominate the update. Real batches stay far
-/// below it (their ratios are within a few tenths of 1).
-pub const LOG_RATIO_MAX: f32 = 20.0;
 
 /// PPO's clipped surrogate: `mean(max(-A r, -A clip(r, 1-c, 1+c)))` with
 /// `r = exp(min(log_ratio, LOG_RATIO_MAX))`, all `[batch]`.

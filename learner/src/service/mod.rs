@@ -27,7 +27,7 @@ use std::future::Future;
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::AtomicU64;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use jsae_net::security::{Security, SecurityFlags};
 use jsae_net::{self as net, client};
@@ -39,10 +39,11 @@ use jsae_wire::{MAX_MESSAGE_BYTES, pb};
 use tokio::net::TcpListener;
 use tokio::sync::{mpsc, watch};
 
-use crate::{Learner, LoggedPurchases, UPDATE_COLUMNS};
+use crate::lifecycle::LearnerRun;
+use crate::{Learner, LoggedPurchases};
 use grpc::{Input, PolicyState};
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
-use jsae_run_dir::{ResumePoint, RunMetrics, Summary};
+use jsae_run_dir::{Resume, Summary};
 
 /// Messages queued between the service and the learner thread.
 const QUEUE: usize = 256;
@@ -51,11 +52,10 @@ const TICK: Duration = Duration::from_millis(100);
 use training::LearnerLoop;
 pub use training::latest_checkpoint;
 
-/// Where the learner writes its run directory.
+/// What the learner follows and where it reads from, beside its settings (the run directory
+/// is `config.out`).
 #[derive(Debug, Clone)]
 pub struct LearnerOptions {
-    /// The run directory (metrics.csv, summary.json, checkpoints/).
-    pub out: PathBuf,
     /// The embedder to follow (JSAE, AE, RA): embedding versions and losses for the metrics and the
     /// final embedding checkpoint.
     pub embedder: Option<String>,
@@ -100,66 +100,27 @@ pub async fn serve(
     options: LearnerOptions,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<Option<Summary>> {
-    let out = RunDir::new(&options.out);
-    std::fs::create_dir_all(out.checkpoints().path())?;
     // a large model takes a while to build: off the runtime, so that a signal is heard
     let mut shutdown = Box::pin(shutdown);
     let build = tokio::task::spawn_blocking({
         let config = config.clone();
         move || Learner::for_run(&config)
     });
-    let mut learner = tokio::select! {
+    let learner = tokio::select! {
         built = build => built?,
         () = &mut shutdown => {
             tracing::info!("learner: stopped while building the model");
             return Ok(None);
         }
     };
-    let mut started = Instant::now();
-    let resumed = match out.checkpoints().read_latest_checkpoint(Weights::Policy) {
-        Some(s) => {
-            let wall = learner.resume(&s)?;
-            tracing::info!(
-                "resuming from the policy checkpoint, version {}, training state {} bytes \
-                 (crc32 {:08x})",
-                s.version,
-                s.state.len(),
-                s.state_checksum()
-            );
-            if let Some(wall) = wall {
-                started = jsae_run_dir::run_started(wall);
-                tracing::info!(
-                    "the run goes on from {} env steps and {wall:.1} s",
-                    learner.env_steps()
-                );
-            } else if options.resume {
-                let point = ResumePoint::of(&out)?;
-                learner.count_steps_from(point.env_steps);
-                started = point.started();
-                tracing::info!("the run goes on from {} env steps", point.env_steps);
-            }
-            true
-        }
-        None if options.resume => {
-            anyhow::bail!(
-                "--resume: {} holds no policy checkpoint",
-                out.checkpoints().path().display()
-            )
-        }
-        None => false,
+    let resume = match options.resume {
+        true => Resume::Required,
+        false => Resume::IfCheckpoint,
     };
-    let mut fresh = !resumed;
-    if !resumed && let Some(source) = jsae_run_dir::init_source(&config)? {
-        learner.warm_start(&source.policy)?;
-        tracing::info!("policy warm-started from {}", source.dir.display());
-        fresh = false;
-    }
-    if !resumed {
-        std::fs::write(out.config_toml(), config.to_toml())?;
-    }
-    // rows of updates past the checkpoint's (a forged row, or a row of an update whose
-    // checkpoint was lost) are cut, so the rows this run writes are not taken for repeats
-    let metrics = RunMetrics::open(&out, &UPDATE_COLUMNS, resumed.then(|| learner.updates()))?;
+    let run = LearnerRun::open(&config, learner, resume, &mut |line| {
+        tracing::info!("{line}")
+    })?;
+    let learner = run.learner();
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
     let (stop_tx, stop_rx) = watch::channel(false);
@@ -236,15 +197,11 @@ pub async fn serve(
     drop(queue_tx);
     let run = LearnerLoop {
         config,
-        out,
-        learner,
-        metrics: Box::new(metrics),
+        run,
         publish: publish_tx,
         hold: hold_tx,
         version,
         embedding: None,
-        started,
-        fresh,
         logged: options.logged.clone(),
         telemetry: options.metrics.clone(),
     };
@@ -360,9 +317,8 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
             let mut registry = MetricsRegistry::default();
             let metrics = LearnerMetrics::register(&mut registry);
             jsae_telemetry::serve(&args.metrics, registry).await?;
-            println!("jsae-learner listening on {}", listener.local_addr()?);
+            net::logging::announce_listening("jsae-learner", listener.local_addr()?);
             let options = LearnerOptions {
-                out: args.out,
                 embedder,
                 logged,
                 resume: args.resume,
@@ -373,10 +329,7 @@ pub fn main(args: LearnerArgs, logs: LogsSource) -> std::process::ExitCode {
         },
         |summary| {
             if let Some(summary) = summary {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&summary).unwrap_or_default()
-                );
+                net::logging::print_result("the run's summary", &summary);
             }
         },
     )

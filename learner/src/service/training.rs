@@ -1,6 +1,6 @@
-//! The learner's training thread: it owns the [`Learner`] and the run directory (metrics.csv
-//! per update, the latest policy checkpoint with the training state before each snapshot is
-//! published, summary.json at the end) and ends the run: at `env_steps` it asks an actor for
+//! The learner's training thread: it owns the [`LearnerRun`] (the learner on its run
+//! directory: the latest policy checkpoint before each snapshot is published, metrics.csv per
+//! update, summary.json at the end) and ends the run: at `env_steps` it asks an actor for
 //! deterministic evaluation episodes (the one whose fragment reached them, or another if that
 //! one's stream closes: [`Evaluation`]), writes the summary on its report and tells the actors
 //! to finish.
@@ -9,7 +9,7 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::{Duration, Instant};
 
-use jsae_run_dir::{LatestCheckpoint, RunDir, Weights};
+use jsae_run_dir::{RunDir, Weights};
 use jsae_settings::TrainConfig;
 use jsae_telemetry::{LearnerMetrics, LearnerSample};
 use jsae_wire::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
@@ -18,8 +18,9 @@ use tokio::sync::{mpsc, watch};
 use super::evaluation::Evaluation;
 use super::grpc::{Input, PolicyState};
 use super::roster::Roster;
-use crate::{Ingested, Learner, LoggedPurchases, UpdateReport, update_scalars};
-use jsae_run_dir::{MetricsSink, Summary};
+use crate::lifecycle::LearnerRun;
+use crate::{Ingested, LoggedPurchases, UpdateReport};
+use jsae_run_dir::Summary;
 
 /// The round reached its batch (logged when its silent actors were left out).
 fn round_completed(roster: &mut Roster, now: Instant) {
@@ -40,45 +41,25 @@ pub fn latest_checkpoint(out: &RunDir) -> Option<PolicySnapshot> {
 
 pub(super) struct LearnerLoop {
     pub(super) config: TrainConfig,
-    pub(super) out: RunDir,
-    pub(super) learner: Learner,
-    pub(super) metrics: Box<dyn MetricsSink>,
+    pub(super) run: LearnerRun,
     pub(super) publish: watch::Sender<PolicyState>,
     /// Set from `embedding.hold_from` of the run on: the embedder is asked to hold its
     /// embedding (a task in the service repeats the request).
     pub(super) hold: watch::Sender<bool>,
     pub(super) version: Arc<AtomicU64>,
     pub(super) embedding: Option<EmbeddingSnapshot>,
-    pub(super) started: Instant,
-    /// A fresh run, neither resumed nor warm-started: its policy learns from `logged` (where
-    /// the settings ask) before the first snapshot, which the actors wait for.
-    pub(super) fresh: bool,
+    /// What a fresh run's policy learns from (where the settings ask) before the first
+    /// snapshot, which the actors wait for.
     pub(super) logged: Option<Arc<LoggedPurchases>>,
     pub(super) telemetry: LearnerMetrics,
 }
 
 impl LearnerLoop {
-    /// Writes the checkpoint (the weights with the training state at this wall time), then
-    /// publishes the snapshot.
-    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) -> anyhow::Result<()> {
-        let saved = LatestCheckpoint {
-            version: snapshot.version,
-            weights: snapshot.bytes,
-            state: self
-                .learner
-                .training_state(self.started.elapsed().as_secs_f64())?,
-        };
-        self.out
-            .checkpoints()
-            .write_latest_checkpoint(Weights::Policy, &saved)?;
-        let snapshot = PolicySnapshot {
-            version: saved.version,
-            bytes: saved.weights,
-        };
+    /// Publishes a snapshot (checkpointed already).
+    fn publish_snapshot(&mut self, snapshot: PolicySnapshot) {
         self.version.store(snapshot.version, Ordering::Release);
         let snapshot = Arc::new(snapshot);
         self.publish.send_modify(|s| s.snapshot = Some(snapshot));
-        Ok(())
     }
 
     /// Sets the learner's batch to the roster's; records the update when what is buffered
@@ -86,7 +67,11 @@ impl LearnerLoop {
     /// snapshot is collected with them.
     fn resize_batch(&mut self, roster: &mut Roster, now: Instant) -> anyhow::Result<()> {
         self.publish_shares(roster);
-        if let Some(report) = self.learner.set_batch_steps(roster.batch_steps())? {
+        if let Some(report) = self
+            .run
+            .learner_mut()
+            .set_batch_steps(roster.batch_steps())?
+        {
             round_completed(roster, now);
             self.publish_shares(roster);
             self.record_update(report)?;
@@ -112,13 +97,11 @@ impl LearnerLoop {
         self.publish.send_modify(|s| s.shares = shares);
     }
 
-    /// Records an update: the checkpoint, then its metrics row (a stop between them leaves a
-    /// row missing, never the same update twice), the log line and the Prometheus families.
+    /// Records an update (its checkpoint and metrics row, [`LearnerRun::record_update`]),
+    /// publishes its snapshot, and logs it and updates the Prometheus families.
     fn record_update(&mut self, report: UpdateReport) -> anyhow::Result<()> {
-        let wall = self.started.elapsed().as_secs_f64();
-        let row = update_scalars(&report.metrics, wall, self.embedding.as_ref());
-        self.publish_snapshot(report.snapshot)?;
-        self.metrics.record(&row)?;
+        self.run.record_update(&report, self.embedding.as_ref())?;
+        self.publish_snapshot(report.snapshot);
         tracing::info!(
             "update {}: {} env steps ({} in the batch), return {:.3}, lag {:.2}",
             report.metrics.update,
@@ -129,12 +112,16 @@ impl LearnerLoop {
         );
         self.telemetry
             .observe_update(report.metrics.policy_lag_mean);
-        if !*self.hold.borrow() && self.config.embedding_held_at(self.learner.env_steps()) {
+        if !*self.hold.borrow()
+            && self
+                .config
+                .embedding_held_at(self.run.learner().env_steps())
+        {
             tracing::info!(
                 "{} of {} env steps: asking the embedder to hold embedding v{} (embedding.hold_from)",
-                self.learner.env_steps(),
+                self.run.learner().env_steps(),
                 self.config.env_steps,
-                self.learner.embedding_version()
+                self.run.learner().embedding_version()
             );
             self.hold.send_replace(true);
         }
@@ -142,13 +129,11 @@ impl LearnerLoop {
     }
 
     pub(super) fn run(mut self, mut queue: mpsc::Receiver<Input>) -> anyhow::Result<Summary> {
-        if self.fresh {
-            for note in self.learner.learn_from_logs(self.logged.as_deref())? {
-                tracing::info!("{note}");
-            }
-        }
-        let first = self.learner.snapshot()?;
-        self.publish_snapshot(first)?;
+        let logged = self.logged.clone();
+        let first = self
+            .run
+            .first_snapshot(logged.as_deref(), &mut |line| tracing::info!("{line}"))?;
+        self.publish_snapshot(first);
         let mut evaluation =
             Evaluation::new(self.config.eval_episodes as u32, self.config.eval_seed());
         // the deadline's floor is half the actors' own: the learner gives up on a silent actor
@@ -184,11 +169,13 @@ impl LearnerLoop {
                             "a round waited {:.1} s: updating on its {} env steps without actors \
                              {missing:?}, left out of the batch until they send again",
                             deadline.as_secs_f64(),
-                            self.learner.pending_steps()
+                            self.run.learner().pending_steps()
                         );
                         self.publish_shares(&roster);
-                        self.learner.set_batch_steps(roster.batch_steps())?;
-                        if let Some(report) = self.learner.close_round()? {
+                        self.run
+                            .learner_mut()
+                            .set_batch_steps(roster.batch_steps())?;
+                        if let Some(report) = self.run.learner_mut().close_round()? {
                             self.record_update(report)?;
                         }
                         self.telemetry.observe_actors(roster.counts());
@@ -198,14 +185,14 @@ impl LearnerLoop {
                     let (actor_id, len) = (f.actor_id, f.len());
                     let now = Instant::now();
                     self.telemetry.observe_actor_steps(actor_id, len as u64);
-                    match self.learner.ingest(*f) {
+                    match self.run.learner_mut().ingest(*f) {
                         Ok(Ingested::Updated(report)) => {
                             round_completed(&mut roster, now);
                             self.publish_shares(&roster);
                             self.record_update(*report)?;
                         }
                         Ok(Ingested::Buffered) => {
-                            let first = self.learner.pending_steps() == len;
+                            let first = self.run.learner().pending_steps() == len;
                             roster.buffered(actor_id, first, now);
                         }
                         // a dropped fragment still shows its actor alive
@@ -215,22 +202,22 @@ impl LearnerLoop {
                     // an absent actor that sent again is back in the batch
                     self.resize_batch(&mut roster, now)?;
                     self.telemetry.observe_fragment(&LearnerSample {
-                        env_steps: self.learner.env_steps(),
-                        updates: self.learner.updates(),
-                        policy_version: self.learner.version(),
-                        embedding_version: self.learner.embedding_version(),
-                        dropped: self.learner.dropped(),
+                        env_steps: self.run.learner().env_steps(),
+                        updates: self.run.learner().updates(),
+                        policy_version: self.run.learner().version(),
+                        embedding_version: self.run.learner().embedding_version(),
+                        dropped: self.run.learner().dropped(),
                         queue_depth: queue.len(),
                     });
-                    if self.learner.env_steps() >= self.config.env_steps {
+                    if self.run.learner().env_steps() >= self.config.env_steps {
                         let request = evaluation.ask(
                             actor_id,
                             &roster,
-                            self.learner.trained_embedding_version(),
+                            self.run.learner().trained_embedding_version(),
                         );
                         tracing::info!(
                             "{} env steps reached: asking actor {} for {} evaluation episodes",
-                            self.learner.env_steps(),
+                            self.run.learner().env_steps(),
                             request.actor_id,
                             request.episodes
                         );
@@ -250,21 +237,9 @@ impl LearnerLoop {
     }
 
     fn finish(mut self, eval: &EvalReport) -> anyhow::Result<Summary> {
-        let summary = self.learner.summary(
-            &self.config,
-            self.learner.env_steps(),
-            self.started.elapsed().as_secs_f64(),
-            eval,
-        );
-        let ckpt = self.out.checkpoints();
-        let last = self.learner.snapshot()?;
-        ckpt.write_versioned(Weights::Policy, last.version, &last.bytes)?;
-        if let Some(e) = &self.embedding {
-            ckpt.write_versioned(Weights::Embedding, e.version, &e.bytes)?;
-        }
-        summary.write(&self.out)?;
-        self.metrics
-            .record_eval(summary.env_steps, &summary.eval_scalars())?;
+        let summary = self
+            .run
+            .finish(&self.config, eval, self.embedding.as_ref())?;
         self.publish.send_modify(|s| s.finished = true);
         Ok(summary)
     }

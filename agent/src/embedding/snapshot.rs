@@ -2,12 +2,13 @@
 //! the g-table, or the decoder MLP) for action embeddings.
 
 use burn::tensor::Device;
-use jsae_settings::Representation;
+use jsae_settings::{EmbeddingConfig, Representation};
 use jsae_wire::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateSpace};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
-use crate::{EmbeddingConfig, EmbeddingModel, NearestAction};
+use super::EmbeddingModel;
+use crate::NearestAction;
 use jsae_nn::{self as nn, RecordError};
 
 /// The inference side of the embedding model, swapped in whole when a snapshot arrives.

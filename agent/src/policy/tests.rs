@@ -2,6 +2,7 @@
 
 use super::*;
 use jsae_nn::{BurnDevice, DeviceKind};
+use jsae_wire::ActionBatch;
 use rand::SeedableRng;
 
 #[test]
@@ -20,10 +21,10 @@ fn observation_statistics_travel_with_the_weights() {
     assert!(mean.iter().all(|&m| m > 100.0) && var.iter().all(|&v| v > 100.0));
     assert!((count - 100.0).abs() < 1e-2);
 
-    let bytes = policy.to_bytes().expect("serialises");
+    let bytes = policy.record_bytes().expect("serialises");
     let mut fresh = Policy::new(&config, 3, head, &mut rng, &device);
     assert_ne!(fresh.obs_stats().map(|s| s.0), Some(mean.clone()));
-    fresh.load_bytes(&bytes).expect("loads");
+    fresh.load_record(&bytes).expect("loads");
     assert_eq!(fresh.obs_stats().map(|s| (s.0, s.1)), Some((mean, var)));
 
     let probe = vec![130.0, 110.0, 150.0];
@@ -31,6 +32,7 @@ fn observation_statistics_travel_with_the_weights() {
         let (mut a, mut lp) = (ActionBatch::empty(&head.action_space()), Vec::new());
         p.act(
             &probe,
+            None,
             true,
             &mut ChaCha8Rng::seed_from_u64(0),
             &mut a,
@@ -40,7 +42,7 @@ fn observation_statistics_travel_with_the_weights() {
     };
     let loaded = {
         let mut p = Policy::new(&config, 3, head, &mut rng, &device);
-        p.load_bytes(&bytes).expect("loads");
+        p.load_record(&bytes).expect("loads");
         p
     };
     assert_eq!(

@@ -1,12 +1,15 @@
 //! The policy and the critic: separate tanh MLPs on the policy input `x`, with a diagonal
 //! Gaussian head (state-independent log-std parameter, so the std `exp(log_std)` stays
-//! positive) or a categorical head.
+//! positive) or a categorical head. This is the acting half (the head's outputs, sampling,
+//! the mode) and the weights whole (the critic too, so that the bytes load as one record);
+//! the losses that train it are the learner's. A recommender's count prior
+//! ([`crate::prior`]) is not part of the model: the caller passes it to
+//! [`Policy::head_outputs`] and [`Policy::act`].
 
 use std::sync::{Arc, OnceLock};
 
 use burn::module::{Module, Param};
-use burn::tensor::activation::log_softmax;
-use burn::tensor::{Device, Int, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use jsae_nn::{
     self as nn, HostInput, HostMlp, Mlp, MlpConfig, MlpWork, PairCross, RecordError, SparseRows,
 };
@@ -17,13 +20,19 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::StandardNormal;
 use serde::{Deserialize, Serialize};
 
-use crate::PpoConfig;
 use crate::prior::CountPrior;
 use jsae_nn::ObsNorm;
+use jsae_settings::PpoConfig;
 
-pub(crate) const LOG_STD_MIN: f32 = -5.0;
-pub(crate) const LOG_STD_MAX: f32 = 2.0;
-pub(crate) const HALF_LOG_2PI: f32 = 0.918_938_5;
+mod prior_bytes;
+pub use prior_bytes::PolicyPrior;
+
+/// The smallest log-std a Gaussian head acts with (the parameter is clamped to it).
+pub const LOG_STD_MIN: f32 = -5.0;
+/// The largest log-std a Gaussian head acts with.
+pub const LOG_STD_MAX: f32 = 2.0;
+/// `ln(2 pi) / 2`, the Gaussian log-density's constant per component.
+pub const HALF_LOG_2PI: f32 = 0.918_938_5;
 /// A bound on `|z|` of a standard normal draw by `rand_distr`'s ziggurat from 53 random bits
 /// (its tail gives at most about 13.7).
 const MAX_NORMAL_DRAW: f32 = 20.0;
@@ -99,17 +108,6 @@ pub struct PolicyNet {
     obs_norm: Option<ObsNorm>,
 }
 
-/// What training needs per minibatch.
-#[derive(Debug)]
-pub struct Evaluation {
-    /// Log-probability of the given actions, `[batch]`.
-    pub logp: Tensor<1>,
-    /// Entropy per sample, `[batch]`.
-    pub entropy: Tensor<1>,
-    /// `V(x)`, `[batch]`.
-    pub value: Tensor<1>,
-}
-
 /// A policy with its critic, on one device.
 #[derive(Debug, Clone)]
 pub struct Policy {
@@ -126,11 +124,6 @@ pub struct Policy {
     /// weight rows instead of a dense product over every bucket); copied from `net` at the
     /// first use after the weights change.
     host_actor: OnceLock<Arc<HostMlp>>,
-    /// Whether the logits add a prior counted from logged purchases (`ppo.logged_prior`):
-    /// the bytes then carry it after the weights.
-    uses_prior: bool,
-    /// That prior, once counted (or read with the weights).
-    prior: Option<Arc<CountPrior>>,
     device: Device,
 }
 
@@ -183,36 +176,8 @@ impl Policy {
                 value: config.pair_scale,
             }),
             host_actor: OnceLock::new(),
-            uses_prior: config.logged_prior,
-            prior: None,
             device: device.clone(),
         }
-    }
-
-    /// The prior the logits add ([`CountPrior`]), once it is set.
-    pub fn prior(&self) -> Option<&Arc<CountPrior>> {
-        self.prior.as_ref()
-    }
-
-    /// Whether the settings ask for a prior (`ppo.logged_prior`).
-    pub fn uses_prior(&self) -> bool {
-        self.uses_prior
-    }
-
-    /// Sets the prior the logits add.
-    ///
-    /// # Panics
-    /// When the settings ask for none, or it is not over this policy's actions.
-    pub fn set_prior(&mut self, prior: CountPrior) {
-        assert!(self.uses_prior, "ppo.logged_prior is off");
-        assert_eq!(
-            Some(prior.actions()),
-            match self.head {
-                PolicyHead::Categorical { n } => Some(n),
-                PolicyHead::Gaussian { .. } => None,
-            }
-        );
-        self.prior = Some(Arc::new(prior));
     }
 
     /// The crossed pair feature after the input ([`jsae_nn::SparseRows::crossed`]), if any.
@@ -236,24 +201,24 @@ impl Policy {
     }
 
     /// The actor MLP, the critic MLP and the (unclamped) log-std parameter.
-    pub(crate) fn parts(&self) -> (&Mlp, &Mlp, &Param<Tensor<1>>) {
+    pub fn parts(&self) -> (&Mlp, &Mlp, &Param<Tensor<1>>) {
         (&self.net.actor, &self.net.critic, &self.net.log_std)
     }
 
     /// Whether the Gaussian mean is tanh-bounded.
-    pub(crate) fn tanh_mean(&self) -> bool {
+    pub fn tanh_mean(&self) -> bool {
         self.tanh_mean
     }
 
     /// The log-std up to which the entropy bonus counts.
-    pub(crate) fn entropy_log_std_max(&self) -> f32 {
+    pub fn entropy_log_std_max(&self) -> f32 {
         self.entropy_log_std_max
     }
 
     /// Holds a Gaussian policy's log std at most `max` (the entropy bonus's falling cap,
     /// `PpoConfig::entropy_log_std_cap_at`): the parameter is clamped to it and the bonus
     /// stops there from now on. A categorical policy has no std to hold.
-    pub(crate) fn hold_log_std(&mut self, max: f32) {
+    pub fn hold_log_std(&mut self, max: f32) {
         if !matches!(self.head, PolicyHead::Gaussian { .. }) {
             return;
         }
@@ -277,13 +242,13 @@ impl Policy {
         self.host_actor = OnceLock::new();
     }
 
-    /// Replaces the trainable weights with `params` (what the host update trained), keeping
-    /// each parameter's id and the observation statistics.
-    pub(crate) fn load_host(&mut self, params: &crate::fused::HostParams) {
+    /// Replaces the trainable weights with host copies (what the learner's host update
+    /// trained), keeping each parameter's id and the observation statistics.
+    pub fn set_host_weights(&mut self, actor: &HostMlp, critic: &HostMlp, log_std: &[f32]) {
         self.host_actor = OnceLock::new();
-        self.net.actor.set_from_host(&params.actor);
-        self.net.critic.set_from_host(&params.critic);
-        let values = params.log_std.as_slice().unwrap_or(&[]);
+        self.net.actor.set_from_host(actor);
+        self.net.critic.set_from_host(critic);
+        let values = log_std;
         self.net.log_std = self
             .net
             .log_std
@@ -301,44 +266,21 @@ impl Policy {
         }
     }
 
-    /// Weights as bytes; with `ppo.logged_prior`, framed with the prior's counts
-    /// ([`crate::prior::frame`]).
-    pub fn to_bytes(&self) -> Result<Vec<u8>, RecordError> {
-        let record = nn::into_bytes(&self.net)?;
-        Ok(if self.uses_prior {
-            crate::prior::frame(&record, self.prior.as_deref())
-        } else {
-            record
-        })
+    /// The weights as one record's bytes (without a prior: [`crate::prior::PolicyPrior`]
+    /// frames them with one where the settings ask).
+    pub fn record_bytes(&self) -> Result<Vec<u8>, RecordError> {
+        nn::into_bytes(&self.net)
     }
 
-    /// Loads weights (and the prior, where the settings ask for one) from
-    /// [`Self::to_bytes`]'s bytes (structure checked).
-    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
-        let (record, prior) = if self.uses_prior {
-            crate::prior::unframe(bytes).map_err(|e| RecordError(e.to_string()))?
-        } else {
-            (bytes, &[][..])
-        };
-        let prior = match (prior.is_empty(), self.head) {
-            (true, _) => None,
-            (false, PolicyHead::Categorical { n }) => Some(Arc::new(
-                CountPrior::from_bytes(prior, self.input, n)
-                    .map_err(|e| RecordError(e.to_string()))?,
-            )),
-            (false, PolicyHead::Gaussian { .. }) => {
-                return Err(RecordError("a count prior for a Gaussian policy".into()));
-            }
-        };
-        self.net = nn::from_bytes(self.net.clone(), record)?;
-        if prior.is_some() {
-            self.prior = prior;
-        }
+    /// Loads weights from [`Self::record_bytes`]'s bytes (structure checked).
+    pub fn load_record(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
+        self.net = nn::from_bytes(self.net.clone(), bytes)?;
         self.host_actor = OnceLock::new();
         Ok(())
     }
 
-    fn log_std(&self) -> Tensor<1> {
+    /// The log-std parameter clamped to `[LOG_STD_MIN, LOG_STD_MAX]`, as the head acts with it.
+    pub fn log_std(&self) -> Tensor<1> {
         self.net.log_std.val().clamp(LOG_STD_MIN, LOG_STD_MAX)
     }
 
@@ -348,7 +290,7 @@ impl Policy {
     }
 
     /// The network input: `x`, normalised when the policy normalises observations.
-    fn input(&self, x: Tensor<2>) -> Tensor<2> {
+    pub fn network_input(&self, x: Tensor<2>) -> Tensor<2> {
         match &self.net.obs_norm {
             Some(norm) => norm.apply(x),
             None => x,
@@ -369,72 +311,20 @@ impl Policy {
         self.net.obs_norm.as_ref().map(ObsNorm::stats)
     }
 
-    /// `V(x)`: `[batch, input] -> [batch]` (through burn: a policy without the pair feature,
-    /// which only the fused update's host passes build).
-    pub fn value(&self, x: Tensor<2>) -> Tensor<1> {
-        let v = self.net.critic.forward(self.input(x));
-        let [b, _] = v.dims();
-        v.reshape([b])
-    }
-
-    /// The actor network's output: Gaussian means (tanh-bounded if configured) or logits.
-    fn actor_out(&self, x: Tensor<2>) -> Tensor<2> {
-        let out = self.net.actor.forward(self.input(x)); // [batch, outputs]
+    /// The actor network's output: Gaussian means (tanh-bounded if configured) or logits
+    /// (without a prior).
+    pub fn actor_out(&self, x: Tensor<2>) -> Tensor<2> {
+        let out = self.net.actor.forward(self.network_input(x)); // [batch, outputs]
         match self.head {
             PolicyHead::Gaussian { .. } if self.tanh_mean => out.tanh(),
             _ => out,
         }
     }
 
-    /// Log-probabilities, entropies and values of `actions` at `x` (with gradients on an
-    /// autodiff device; a policy without the pair feature, as [`Self::value`]).
-    pub fn evaluate(&self, x: Tensor<2>, actions: &ActionBatch) -> Evaluation {
-        let value = self.value(x.clone());
-        let out = self.actor_out(x); // [batch, outputs]
-        let [batch, width] = out.dims();
-        let (logp, entropy) = match (self.head, actions) {
-            (PolicyHead::Gaussian { dim }, ActionBatch::Continuous { data, .. }) => {
-                let a = nn::tensor2(data.clone(), batch, dim, &self.device);
-                let log_std = self.log_std().reshape([1, dim]); // [1, dim]
-                let z = (a - out) / log_std.clone().exp();
-                let logp = (z.square().mul_scalar(-0.5) - log_std.clone())
-                    .sum_dim(1)
-                    .reshape([batch])
-                    .sub_scalar(HALF_LOG_2PI * dim as f32);
-                let ent = log_std
-                    .clamp_max(self.entropy_log_std_max)
-                    .sum_dim(1)
-                    .add_scalar((0.5 + HALF_LOG_2PI) * dim as f32);
-                (
-                    logp,
-                    Tensor::<1>::ones([batch], &self.device).mul(ent.reshape([1])),
-                )
-            }
-            (PolicyHead::Categorical { .. }, ActionBatch::Discrete(a)) => {
-                let lp = log_softmax(out, 1); // [batch, n]
-                let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
-                let idx =
-                    Tensor::<2, Int>::from_data(TensorData::new(idx, [batch, 1]), &self.device);
-                let logp = lp.clone().gather(1, idx).reshape([batch]);
-                let ent = (lp.clone().exp() * lp).sum_dim(1).reshape([batch]).neg();
-                (logp, ent)
-            }
-            _ => {
-                let _ = width;
-                let zeros = Tensor::<1>::zeros([batch], &self.device);
-                (zeros.clone(), zeros)
-            }
-        };
-        Evaluation {
-            logp,
-            entropy,
-            value,
-        }
-    }
-
     /// The actor network's outputs for every row of `x` (`[batch, input]`), row-major: the
-    /// Gaussian's mean (`[batch, dim]`) or the categorical's logits (`[batch, n]`).
-    pub fn head_outputs(&self, x: &[f32]) -> Vec<f32> {
+    /// Gaussian's mean (`[batch, dim]`) or the categorical's logits (`[batch, n]`), plus
+    /// `prior`'s log-estimate where a categorical policy is given one.
+    pub fn head_outputs(&self, x: &[f32], prior: Option<&CountPrior>) -> Vec<f32> {
         let batch = x.len() / self.input.max(1);
         if batch == 0 {
             return Vec::new();
@@ -446,7 +336,7 @@ impl Policy {
                 nn::to_vec(self.actor_out(nn::tensor2(x.to_vec(), batch, self.input, &self.device)))
             }
         };
-        if let Some(prior) = &self.prior {
+        if let Some(prior) = prior {
             let (n, mut cols) = (prior.actions(), Vec::new());
             for (row, logits) in x.chunks_exact(self.input).zip(out.chunks_exact_mut(n)) {
                 prior.add_to_dense(row, logits, &mut cols);
@@ -473,17 +363,18 @@ impl Policy {
     }
 
     /// Samples (or, `deterministic`, takes the mean / most likely) action for every row of
-    /// `x` (`[batch, input]`), appending them to `actions` and their log-probabilities to
-    /// `logp`.
+    /// `x` (`[batch, input]`) under [`Self::head_outputs`] (with `prior`), appending them to
+    /// `actions` and their log-probabilities to `logp`.
     pub fn act(
         &self,
         x: &[f32],
+        prior: Option<&CountPrior>,
         deterministic: bool,
         rng: &mut ChaCha8Rng,
         actions: &mut ActionBatch,
         logp: &mut Vec<f32>,
     ) {
-        let out = self.head_outputs(x);
+        let out = self.head_outputs(x, prior);
         if out.is_empty() {
             return;
         }

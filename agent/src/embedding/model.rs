@@ -1,0 +1,400 @@
+//! The embedding model: phi (states -> X), g (actions -> E), T (X x E -> S) and, for
+//! continuous actions, the decoder f (E -> A). The AE and RA baselines share its inference
+//! side (phi, the g-table or f) and differ in their training heads; [`Representation`] picks
+//! which. This is the model's structure (every part, so that a snapshot's bytes load whole)
+//! and its inference side; the losses that train it are the embedder's
+//! (`jsae_embedder::EmbeddingTraining`).
+//!
+//! As in the public reference code: phi and g are one linear layer without bias followed by
+//! tanh (for categorical inputs a table: a linear layer on one-hots), T is one linear layer.
+//! For factored categorical states phi sums one table row per factor (a linear layer on the
+//! concatenated one-hots) and T predicts one categorical per factor.
+
+use burn::module::{Module, Param};
+use burn::nn::Linear;
+use burn::tensor::{Device, Int, Tensor, TensorData};
+use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace};
+use rand::Rng;
+use rand_chacha::ChaCha8Rng;
+
+use jsae_nn::{self as nn, Mlp, MlpConfig, ObsNorm};
+use jsae_settings::{EmbeddingConfig, Representation};
+
+/// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
+#[derive(Module, Debug)]
+pub struct EmbeddingNet {
+    /// phi for categorical states: `[sum of factor sizes, m]`.
+    pub phi_table: Option<Param<Tensor<2>>>,
+    /// phi for real states: `[dim -> m]`, no bias.
+    pub phi_linear: Option<Linear>,
+    /// g for discrete actions: `[n, d]`.
+    pub g_table: Option<Param<Tensor<2>>>,
+    /// g for continuous actions: `[dim -> d]`, no bias.
+    pub g_linear: Option<Linear>,
+    /// T's hidden layer (tanh), when `transition_hidden > 0` (JSAE).
+    pub transition_in: Option<Linear>,
+    /// T: `[m + d (or the hidden width) -> logits over next states | next state]` (JSAE).
+    pub transition: Option<Linear>,
+    /// f for continuous actions: `E -> A` (one hidden layer; the AE's is one linear layer).
+    pub decoder: Option<Mlp>,
+    /// AE: the state auto-encoder's second layer, `X -> logits over states | state`.
+    pub state_decoder: Option<Linear>,
+    /// AE, discrete actions: the action auto-encoder's second layer, `E -> logits over A`.
+    pub action_decoder: Option<Linear>,
+    /// RA: the inverse model after phi, `concat(phi(s), phi(s')) -> E` (tanh on the output).
+    pub inverse: Option<Mlp>,
+    /// RA, discrete actions: log of the scale of f's logits `-scale * |e - z_a|^2`.
+    pub inverse_log_scale: Option<Param<Tensor<1>>>,
+    /// Running statistics of real-valued states (`normalize_states`): phi sees normalised
+    /// states and T predicts normalised next states.
+    pub state_norm: Option<ObsNorm>,
+}
+
+/// The embedding model of one environment: the network and the spaces it was built for.
+#[derive(Debug, Clone)]
+pub struct EmbeddingModel {
+    net: EmbeddingNet,
+    representation: Representation,
+    states: StateSpace,
+    actions: ActionSpace,
+    offsets: Vec<u32>,
+    config: EmbeddingConfig,
+    device: Device,
+}
+
+fn uniform_table(
+    rows: usize,
+    cols: usize,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Param<Tensor<2>> {
+    // a linear layer on one-hots of width `rows`: U(-1/sqrt(rows), 1/sqrt(rows))
+    let k = 1.0 / (rows as f32).sqrt();
+    let values: Vec<f32> = (0..rows * cols).map(|_| rng.random_range(-k..k)).collect();
+    Param::from_tensor(nn::tensor2(values, rows, cols, device))
+}
+
+/// A linear layer as burn's default initialises one: `U(-1/sqrt(d_in), 1/sqrt(d_in))` weights
+/// (and bias).
+pub fn uniform_linear(
+    d_in: usize,
+    d_out: usize,
+    bias: bool,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> Linear {
+    let k = 1.0 / (d_in as f32).sqrt();
+    let w: Vec<f32> = (0..d_in * d_out).map(|_| rng.random_range(-k..k)).collect();
+    let b = bias.then(|| (0..d_out).map(|_| rng.random_range(-k..k)).collect());
+    nn::linear_from_host(w, b, d_in, d_out, device)
+}
+
+impl EmbeddingModel {
+    /// A freshly initialised model of `representation` for the given spaces (JSAE's
+    /// parameters are drawn in the same order as before the baselines existed, so a seed
+    /// gives the same JSAE model; the baselines draw their own heads after phi and g).
+    pub fn new(
+        config: &EmbeddingConfig,
+        representation: Representation,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
+        let (m, d) = (config.state_dim, config.action_dim);
+        let ra = representation == Representation::ActionRepresentation;
+        let (phi_table, phi_linear) = match states {
+            StateSpace::Categorical { sizes } => (
+                Some(uniform_table(sizes.iter().sum(), m, rng, device)),
+                None,
+            ),
+            StateSpace::Real { dim } => (None, Some(uniform_linear(*dim, m, false, rng, device))),
+        };
+        let (g_table, g_linear, decoder) = match actions {
+            ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
+            ActionSpace::Continuous { dim, .. } => {
+                // RA has no action encoder: its embeddings come from the inverse model.
+                let g = (!ra).then(|| uniform_linear(*dim, d, false, rng, device));
+                let hidden = match representation {
+                    Representation::AutoEncoder => vec![],
+                    _ => vec![config.decoder_hidden],
+                };
+                let decoder = MlpConfig {
+                    input: d,
+                    hidden,
+                    output: *dim,
+                    output_gain: 1.0,
+                    skip: false,
+                    zero_inputs: 0,
+                };
+                (None, g, Some(decoder.init(rng, device)))
+            }
+        };
+        let mut net = EmbeddingNet {
+            phi_table,
+            phi_linear,
+            g_table,
+            g_linear,
+            transition_in: None,
+            transition: None,
+            decoder,
+            state_decoder: None,
+            action_decoder: None,
+            inverse: None,
+            inverse_log_scale: None,
+            state_norm: match states {
+                StateSpace::Real { dim } if config.normalize_states => {
+                    Some(ObsNorm::new(*dim, device))
+                }
+                _ => None,
+            },
+        };
+        match representation {
+            Representation::Jsae | Representation::Raw => {
+                let t_in = match config.transition_hidden {
+                    0 => m + d,
+                    h => {
+                        net.transition_in = Some(uniform_linear(m + d, h, true, rng, device));
+                        h
+                    }
+                };
+                net.transition = Some(uniform_linear(
+                    t_in,
+                    states.feature_len(),
+                    true,
+                    rng,
+                    device,
+                ));
+            }
+            Representation::AutoEncoder => {
+                autoencoder_heads(&mut net, config, states, actions, rng, device)
+            }
+            Representation::ActionRepresentation => {
+                inverse_heads(&mut net, config, actions, rng, device)
+            }
+        }
+        let offsets = match states {
+            StateSpace::Categorical { sizes } => sizes
+                .iter()
+                .scan(0u32, |acc, &s| {
+                    let o = *acc;
+                    *acc += s as u32;
+                    Some(o)
+                })
+                .collect(),
+            StateSpace::Real { .. } => Vec::new(),
+        };
+        Self {
+            net,
+            representation,
+            states: states.clone(),
+            actions: actions.clone(),
+            offsets,
+            config: config.clone(),
+            device: device.clone(),
+        }
+    }
+
+    /// Which representation it is (which heads it has, which losses train it).
+    pub fn representation(&self) -> Representation {
+        self.representation
+    }
+
+    /// The settings it was built with.
+    pub fn config(&self) -> &EmbeddingConfig {
+        &self.config
+    }
+
+    /// The state space.
+    pub fn state_space(&self) -> &StateSpace {
+        &self.states
+    }
+
+    /// The action space.
+    pub fn action_space(&self) -> &ActionSpace {
+        &self.actions
+    }
+
+    /// The device its tensors live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// The network (for the optimiser).
+    pub fn net(&self) -> &EmbeddingNet {
+        &self.net
+    }
+
+    /// The network, to change in place (its state statistics, a warm start).
+    pub fn net_mut(&mut self) -> &mut EmbeddingNet {
+        &mut self.net
+    }
+
+    /// Replaces the network (after an optimiser step).
+    pub fn set_net(&mut self, net: EmbeddingNet) {
+        self.net = net;
+    }
+
+    /// A copy for inference on `device` (no autodiff).
+    pub fn for_inference(&self, device: &Device) -> Self {
+        Self {
+            net: self.net.valid().to_device(device),
+            device: device.clone(),
+            ..self.clone()
+        }
+    }
+
+    /// The weights as bytes (what a snapshot carries).
+    pub fn to_bytes(&self) -> Result<Vec<u8>, nn::RecordError> {
+        nn::into_bytes(&self.net)
+    }
+
+    /// Loads weights from snapshot bytes (structure checked).
+    pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), nn::RecordError> {
+        self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        Ok(())
+    }
+
+    fn state_tensor(&self, states: &StateBatch) -> StateInput {
+        match states {
+            StateBatch::Categorical { factors, data } => {
+                let idx: Vec<i64> = data
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &v)| i64::from(v + self.offsets[i % factors]))
+                    .collect();
+                let n = idx.len();
+                StateInput::Indices(
+                    Tensor::from_data(TensorData::new(idx, [n]), &self.device),
+                    *factors,
+                )
+            }
+            StateBatch::Real { dim, data } => StateInput::Values(self.normalised(nn::tensor2(
+                data.clone(),
+                data.len() / dim,
+                *dim,
+                &self.device,
+            ))),
+        }
+    }
+
+    /// Real-valued states as phi sees them and T predicts them: normalised by the running
+    /// statistics when the model keeps them (`normalize_states`).
+    pub fn normalised(&self, states: Tensor<2>) -> Tensor<2> {
+        match &self.net.state_norm {
+            Some(norm) => norm.apply(states),
+            None => states,
+        }
+    }
+
+    /// phi: `[batch] states -> [batch, m]`.
+    pub fn embed_states(&self, states: &StateBatch) -> Tensor<2> {
+        let input = self.state_tensor(states);
+        self.phi(input)
+    }
+
+    fn phi(&self, input: StateInput) -> Tensor<2> {
+        let pre = match (input, &self.net.phi_table, &self.net.phi_linear) {
+            (StateInput::Indices(idx, factors), Some(table), _) => {
+                let rows = table.val().select(0, idx); // [batch * factors, m]
+                let [n, m] = rows.dims();
+                if factors == 1 {
+                    rows
+                } else {
+                    rows.reshape([n / factors, factors, m])
+                        .sum_dim(1)
+                        .reshape([n / factors, m])
+                }
+            }
+            (StateInput::Values(v), _, Some(linear)) => linear.forward(v),
+            _ => unreachable_state(),
+        };
+        pre.tanh()
+    }
+
+    /// g: `[batch] actions -> [batch, d]`.
+    pub fn embed_actions(&self, actions: &ActionBatch) -> Tensor<2> {
+        let pre = match (actions, &self.net.g_table, &self.net.g_linear) {
+            (ActionBatch::Discrete(a), Some(table), _) => {
+                let idx: Vec<i64> = a.iter().map(|&v| i64::from(v)).collect();
+                let n = idx.len();
+                table.val().select(
+                    0,
+                    Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &self.device),
+                )
+            }
+            (ActionBatch::Continuous { dim, data }, _, Some(linear)) => linear.forward(
+                nn::tensor2(data.clone(), data.len() / dim, *dim, &self.device),
+            ),
+            _ => unreachable_action(),
+        };
+        pre.tanh()
+    }
+
+    /// Every discrete action's embedding `g(a)`, `[n, d]` (None for continuous actions).
+    pub fn action_table(&self) -> Option<Tensor<2>> {
+        self.net.g_table.as_ref().map(|t| t.val().tanh())
+    }
+
+    /// f for continuous actions: `[batch, d] -> [batch, action dim]` (None for discrete).
+    pub fn decode(&self, e: Tensor<2>) -> Option<Tensor<2>> {
+        self.net.decoder.as_ref().map(|f| f.forward(e))
+    }
+}
+
+enum StateInput {
+    Indices(Tensor<1, Int>, usize),
+    Values(Tensor<2>),
+}
+
+// The constructors pair each table with its input kind; batches are validated against the
+// same spaces before they reach the model, so a mismatch is a programming error.
+fn unreachable_state() -> ! {
+    panic!("state batch kind does not match the embedding model's state space")
+}
+
+fn unreachable_action() -> ! {
+    panic!("action batch kind does not match the embedding model's action space")
+}
+
+/// RA's initial logit scale: a unit step in squared distance is 10 nats.
+const INITIAL_SCALE: f32 = 10.0;
+
+/// AE: each auto-encoder's second layer (the losses: `jsae_embedder`'s `model/baselines.rs`).
+fn autoencoder_heads(
+    net: &mut EmbeddingNet,
+    config: &EmbeddingConfig,
+    states: &StateSpace,
+    actions: &ActionSpace,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) {
+    let (m, d) = (config.state_dim, config.action_dim);
+    net.state_decoder = Some(uniform_linear(m, states.feature_len(), true, rng, device));
+    if let ActionSpace::Discrete { n } = actions {
+        net.action_decoder = Some(uniform_linear(d, *n, true, rng, device));
+    }
+}
+
+/// RA: the inverse model on `concat(phi(s), phi(s'))`, and the logits' scale.
+fn inverse_heads(
+    net: &mut EmbeddingNet,
+    config: &EmbeddingConfig,
+    actions: &ActionSpace,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) {
+    let inverse = MlpConfig {
+        input: 2 * config.state_dim,
+        hidden: vec![config.decoder_hidden],
+        output: config.action_dim,
+        output_gain: 1.0,
+        skip: false,
+        zero_inputs: 0,
+    };
+    net.inverse = Some(inverse.init(rng, device));
+    if matches!(actions, ActionSpace::Discrete { .. }) {
+        let log_scale = TensorData::new(vec![INITIAL_SCALE.ln()], [1]);
+        net.inverse_log_scale = Some(Param::from_tensor(Tensor::from_data(log_scale, device)));
+    }
+}
