@@ -1,12 +1,12 @@
 //! End-to-end runs of the one-process trainer: determinism, both devices, every
 //! environment with every algorithm, warm starts, and the run directory's files.
 
-use jsae_cli::progress::Progress;
-use jsae_cli::train_one_process;
 use jsae_nn::DeviceKind;
 use jsae_settings::Algo;
 use jsae_settings::EnvName;
 use jsae_tests::{metrics_without_timing, small_config, summary_without_timing, temp_dir};
+use jsae_train::progress::Progress;
+use jsae_train::train_one_process;
 
 #[test]
 fn the_same_seed_gives_the_same_summary_twice() {

@@ -21,18 +21,13 @@ use jsae_net::client::{self, PolicyEvent};
 use jsae_net::security::{Security, SecurityFlags};
 use jsae_net::{self as net, Backoff};
 use jsae_settings::{EmbedderFlag, RunFlags, TrainConfig};
-use jsae_telemetry::{ActorMetrics, ActorSample, MetricsFlag, MetricsRegistry};
-use jsae_wire::{EmbeddingSnapshot, PolicySnapshot};
-use jsae_wire::{MAX_MESSAGE_BYTES, pb};
+use jsae_telemetry::{ActorMetrics, MetricsFlag, MetricsRegistry};
+use jsae_wire::{EmbeddingSnapshot, MAX_MESSAGE_BYTES, PolicySnapshot, pb};
 use tokio::sync::{mpsc, watch};
 use tonic::Code;
 
-use crate::pacing::{Pace, Pacing};
 use crate::push::push_forever;
-use crate::random_play::RandomPlay;
-use crate::recent_embeddings::RecentEmbeddings;
-use crate::worker::ActorWorker;
-use jsae_record::{Recorder, RecordingInfo};
+use crate::stepping::{Control, Links, stepping_loop};
 
 /// How an actor run ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -76,259 +71,6 @@ pub struct ActorOptions {
     pub security: Security,
 }
 
-enum Control {
-    Evaluate(pb::EvalRequest),
-    Finish,
-}
-
-/// The stepping thread's ends of the channels to the async side.
-struct Links {
-    embedding: watch::Receiver<Option<Arc<EmbeddingSnapshot>>>,
-    policy: watch::Receiver<Option<Arc<PolicySnapshot>>>,
-    control: std::sync::mpsc::Receiver<Control>,
-    transitions: mpsc::Sender<pb::TransitionBatch>,
-    fragments: mpsc::Sender<pb::RolloutFragment>,
-    reports: mpsc::Sender<pb::EvalReport>,
-    /// How many times the embedder's stream opened again after it was lost.
-    embedder_lost: Arc<AtomicU64>,
-    /// The environments the learner last said to step (its `Share`; 0: all).
-    share: Arc<AtomicU64>,
-}
-
-/// Steps until the run ends or `stop`, recording every transition when asked; the recording
-/// is finished (its summary written) however the loop ends.
-fn stepping_loop(
-    config: &TrainConfig,
-    options: &ActorOptions,
-    links: &Links,
-    stop: &AtomicBool,
-) -> anyhow::Result<ActorReport> {
-    let mut worker = ActorWorker::new(config, options.id, config.device)?;
-    let mut recorder = match &options.record {
-        Some((path, run_id)) => {
-            let info =
-                RecordingInfo::of_run(config, run_id, worker.state_space(), worker.action_space());
-            worker.set_recording(true);
-            Some(Recorder::create(path, &info)?)
-        }
-        None => None,
-    };
-    let result = step_until_done(config, options, links, stop, &mut worker, &mut recorder);
-    if let Some(r) = recorder {
-        let path = r.path().to_path_buf();
-        let n = r.finish()?;
-        tracing::info!(
-            "actor {}: {n} transitions recorded in {}",
-            options.id,
-            path.display()
-        );
-    }
-    result
-}
-
-/// Installs the embedding the policy to evaluate was trained on (`version`, 0: not said),
-/// where this actor still holds it and holds a newer one; else says what it evaluates on.
-fn evaluation_embedding(
-    worker: &mut ActorWorker,
-    recent: &RecentEmbeddings,
-    version: u64,
-    actor: u64,
-) {
-    let current = worker.embedding_version();
-    if version == 0 || version == current {
-        return;
-    }
-    match recent.get(version).map(|e| worker.use_embedding(e)) {
-        Some(Ok(())) => tracing::info!(
-            "actor {actor}: evaluating on embedding v{version}, the policy's (v{current} came \
-             after its last update)"
-        ),
-        Some(Err(err)) => tracing::warn!(
-            "actor {actor}: embedding v{version} refused ({err}); evaluating on v{current}"
-        ),
-        None => tracing::warn!(
-            "actor {actor}: the policy was trained on embedding v{version}, which this actor \
-             no longer holds; evaluating on v{current}"
-        ),
-    }
-}
-
-fn step_until_done(
-    config: &TrainConfig,
-    options: &ActorOptions,
-    links: &Links,
-    stop: &AtomicBool,
-    worker: &mut ActorWorker,
-    recorder: &mut Option<Recorder>,
-) -> anyhow::Result<ActorReport> {
-    let mut report = ActorReport {
-        exit: ActorExit::Stopped,
-        env_steps: 0,
-        fragments: 0,
-        policy_versions: Vec::new(),
-        embedding_versions: Vec::new(),
-    };
-    let needs_embedder = config.algo.representation().needs_embedder();
-    let mut pacing = Pacing::new(
-        config.rollouts_per_policy,
-        Duration::from_millis(config.policy_wait_ms),
-    );
-    let mut refused: (Option<u64>, Option<u64>) = (None, None);
-    let mut random_play = RandomPlay::new(config.random_play_share());
-    let mut evaluation: Option<pb::EvalRequest> = None;
-    let mut recent = RecentEmbeddings::default();
-    loop {
-        report.env_steps = worker.env_steps();
-        if stop.load(Ordering::Relaxed) {
-            return Ok(report);
-        }
-        // A snapshot that does not fit this actor's model (another run's service, a
-        // different config) is refused once, logged, and the current weights kept.
-        // (newer than any installed: after the evaluation went back to an older one, the
-        // worker stays on it)
-        let newest = links.embedding.borrow().clone();
-        let installed = report.embedding_versions.last().copied().unwrap_or(0);
-        if let Some(e) = newest
-            && e.version > installed
-            && refused.0 != Some(e.version)
-        {
-            match worker.set_embedding(&e) {
-                Ok(()) => {
-                    report.embedding_versions.push(e.version);
-                    tracing::info!("actor {}: embedding v{}", options.id, e.version);
-                    recent.installed(e);
-                }
-                Err(err) => {
-                    tracing::error!("actor {}: embedding refused: {err}", options.id);
-                    refused.0 = Some(e.version);
-                }
-            }
-        }
-        let newest = links.policy.borrow().clone();
-        if let Some(p) = newest
-            && Some(p.version) != worker.policy_version()
-            && refused.1 != Some(p.version)
-        {
-            match worker.set_policy(&p) {
-                Ok(()) => report.policy_versions.push(p.version),
-                Err(err) => {
-                    tracing::error!("actor {}: policy refused: {err}", options.id);
-                    refused.1 = Some(p.version);
-                }
-            }
-        }
-        while let Ok(c) = links.control.try_recv() {
-            match c {
-                Control::Finish => {
-                    report.exit = ActorExit::Finished;
-                    return Ok(report);
-                }
-                Control::Evaluate(r) => evaluation = Some(r),
-            }
-        }
-        // the evaluation runs on the newest weights this actor was sent (an actor asked the
-        // moment it connects, replacing one that died, may not hold them yet)
-        let newest_policy = links.policy.borrow().as_ref().map(|p| p.version);
-        let weights_current = worker.policy_version().is_some()
-            && (newest_policy == worker.policy_version() || newest_policy == refused.1)
-            && (!needs_embedder || worker.embedding_version() > 0);
-        if weights_current && let Some(r) = evaluation.take() {
-            tracing::info!(
-                "actor {}: {} evaluation episodes on policy v{}",
-                options.id,
-                r.episodes,
-                worker.policy_version().unwrap_or(0)
-            );
-            evaluation_embedding(worker, &recent, r.embedding_version, options.id);
-            let eval = worker.evaluate(r.episodes as usize, r.seed);
-            let _ = links
-                .reports
-                .blocking_send(eval.to_wire(options.id, r.request_id));
-            pacing.restart_wait(std::time::Instant::now());
-        }
-        // Random play only until this actor's share of the pre-training transitions is in
-        // (another share when the embedder went away before its first embedding); then wait
-        // for the first embedding rather than spend the budget on more.
-        let first_embedding = needs_embedder && worker.embedding_version() == 0;
-        if first_embedding
-            && let Some(until) = random_play.embedder_lost(
-                worker.env_steps(),
-                links.embedder_lost.load(Ordering::Relaxed),
-            )
-        {
-            tracing::warn!(
-                "actor {}: the embedder went away before its first embedding and is back; random play for \
-                 its pre-training again, until {until} env steps",
-                options.id
-            );
-        }
-        let waiting_for_embedding = first_embedding && random_play.waits(worker.env_steps());
-        let Some(version) = worker.policy_version() else {
-            std::thread::sleep(Duration::from_millis(5));
-            continue;
-        };
-        if waiting_for_embedding {
-            std::thread::sleep(Duration::from_millis(5));
-            continue;
-        }
-        // On-policy pacing (see `pacing`): random play before the first embedding is not.
-        let acting = worker.embedding_version() > 0 || !needs_embedder;
-        if !acting {
-            pacing.reset();
-        } else if pacing.pace(
-            (version, worker.embedding_version()),
-            std::time::Instant::now(),
-        ) == Pace::Wait
-        {
-            std::thread::sleep(Duration::from_millis(1));
-            continue;
-        }
-        let before = worker.active_envs();
-        let stepped = worker.set_active_envs(links.share.load(Ordering::Relaxed) as usize);
-        if stepped != before {
-            tracing::info!(
-                "actor {}: steps {stepped} of its {} environments (its share of the learner's batch)",
-                options.id,
-                config.envs_per_actor
-            );
-        }
-        let rollout = worker.collect(config.rollout_len);
-        if let (Some(r), Some(steps)) = (recorder.as_mut(), &rollout.recorded) {
-            r.write(&rollout.transitions, steps)?;
-        }
-        if needs_embedder && !rollout.transitions.is_empty() {
-            links
-                .transitions
-                .blocking_send(rollout.transitions.into())
-                .map_err(|_| anyhow::anyhow!("the transition queue closed"))?;
-        }
-        let sent_fragments = rollout.fragments.len() as u64;
-        for f in rollout.fragments {
-            links
-                .fragments
-                .blocking_send(f.into())
-                .map_err(|_| anyhow::anyhow!("the fragment queue closed"))?;
-        }
-        if acting && sent_fragments > 0 {
-            pacing.sent();
-        }
-        report.fragments += sent_fragments;
-        let queued = |max: usize, free: usize| max.saturating_sub(free);
-        options.metrics.observe_rollout(&ActorSample {
-            env_steps: worker.env_steps(),
-            versions: (version, worker.embedding_version()),
-            queued: (
-                queued(
-                    links.transitions.max_capacity(),
-                    links.transitions.capacity(),
-                ),
-                queued(links.fragments.max_capacity(), links.fragments.capacity()),
-            ),
-            fragments: sent_fragments,
-        });
-    }
-}
-
 /// Runs one actor until the learner ends the run or `stop` resolves.
 pub async fn run(
     config: TrainConfig,
@@ -340,7 +82,7 @@ pub async fn run(
     let (control_tx, control_rx) = std::sync::mpsc::channel();
     let (transitions_tx, transitions_rx) = mpsc::channel::<pb::TransitionBatch>(1);
     let (fragments_tx, fragments_rx) = mpsc::channel::<pb::RolloutFragment>(16);
-    let (reports_tx, mut reports_rx) = mpsc::channel::<pb::EvalReport>(2);
+    let (reports_tx, reports_rx) = mpsc::channel::<pb::EvalReport>(2);
     let embedder_lost = Arc::new(AtomicU64::new(0));
     let share = Arc::new(AtomicU64::new(0));
     let mut tasks = tokio::task::JoinSet::new();
@@ -355,19 +97,13 @@ pub async fn run(
             .clone()
             .ok_or_else(|| anyhow::anyhow!("--embedder is required for --algo jsae"))?;
         let channel = security.channel(&url)?;
-        let watching = security.clone();
-        let lost = embedder_lost.clone();
-        let gave_up = gave_up_tx.clone();
-        tasks.spawn(async move {
-            let followed = client::watch_embedding_counting_losses(&watching, &url, &lost, |s| {
-                embedding_tx.send_replace(Some(Arc::new(s)));
-                async { true }
-            })
-            .await;
-            if let Err(e) = followed {
-                let _ = gave_up.send(e).await;
-            }
-        });
+        let follow = (
+            security.clone(),
+            url,
+            embedder_lost.clone(),
+            gave_up_tx.clone(),
+        );
+        follow_embedder(&mut tasks, follow, embedding_tx);
         tasks.spawn(push_forever("embedder", transitions_rx, move |stream| {
             let mut c = pb::embedder_client::EmbedderClient::new(channel.clone())
                 .max_encoding_message_size(MAX_MESSAGE_BYTES);
@@ -378,82 +114,20 @@ pub async fn run(
             }
         }));
     }
-    {
-        let url = options.learner.clone();
-        let id = options.id;
-        let watching = security.clone();
-        let hello = pb::WatchRequest {
-            actor_id: id,
-            evaluates: true,
-            rollout_steps: (config.envs_per_actor * config.rollout_len) as u64,
-            envs: u32::try_from(config.envs_per_actor).unwrap_or(0),
-        };
-        let told = share.clone();
-        let gave_up = gave_up_tx.clone();
-        tasks.spawn(async move {
-            let followed = client::watch_policy(&watching, &url, hello, |event| {
-                let go_on = match event {
-                    PolicyEvent::Snapshot(s) => {
-                        policy_tx.send_replace(Some(Arc::new(s)));
-                        true
-                    }
-                    // only a request addressed to this actor is run
-                    PolicyEvent::Evaluate(r) if r.actor_id == id => {
-                        control_tx.send(Control::Evaluate(r)).is_ok()
-                    }
-                    PolicyEvent::Evaluate(r) => {
-                        tracing::warn!(
-                            "actor {id}: an evaluation request for actor {} ignored",
-                            r.actor_id
-                        );
-                        true
-                    }
-                    PolicyEvent::Finish => {
-                        let _ = control_tx.send(Control::Finish);
-                        false
-                    }
-                    PolicyEvent::Share(envs) => {
-                        told.store(u64::from(envs), Ordering::Relaxed);
-                        true
-                    }
-                };
-                async move { go_on }
-            })
-            .await;
-            if let Err(e) = followed {
-                let _ = gave_up.send(e).await;
-            }
-        });
-        let channel = learner_channel.clone();
-        tasks.spawn(push_forever("learner", fragments_rx, move |stream| {
-            let mut c = pb::learner_client::LearnerClient::new(channel.clone())
-                .max_encoding_message_size(MAX_MESSAGE_BYTES);
-            async move {
-                c.push_fragments(stream)
-                    .await
-                    .map(tonic::Response::into_inner)
-            }
-        }));
-        let channel = learner_channel;
-        tasks.spawn(async move {
-            while let Some(report) = reports_rx.recv().await {
-                let mut backoff = Backoff::default();
-                let mut c = pb::learner_client::LearnerClient::new(channel.clone());
-                for _ in 0..20 {
-                    match c.report_eval(report.clone()).await {
-                        Ok(_) => break,
-                        Err(s) if s.code() == Code::Unavailable => {
-                            tokio::time::sleep(backoff.next_delay()).await;
-                        }
-                        Err(s) => {
-                            tracing::warn!("evaluation report refused: {}", s.message());
-                            break;
-                        }
-                    }
-                }
-            }
-        });
-    }
+    let hello = pb::WatchRequest {
+        actor_id: options.id,
+        evaluates: true,
+        rollout_steps: (config.envs_per_actor * config.rollout_len) as u64,
+        envs: u32::try_from(config.envs_per_actor).unwrap_or(0),
+    };
+    let to_stepping = (policy_tx, control_tx, share.clone());
+    let follow = (
+        security.clone(),
+        options.learner.clone(),
+        gave_up_tx.clone(),
+    );
+    follow_learner(&mut tasks, follow, hello, to_stepping);
+    push_to_learner(&mut tasks, learner_channel, fragments_rx, reports_rx);
 
     let stop_flag = Arc::new(AtomicBool::new(false));
     let stepping = {
@@ -492,6 +166,117 @@ pub async fn run(
     };
     tasks.abort_all();
     exit
+}
+
+/// Follows the embedder's snapshots into `embedding` (counting the stream's losses); a
+/// follower that gave up says so on its channel.
+fn follow_embedder(
+    tasks: &mut tokio::task::JoinSet<()>,
+    (security, url, lost, gave_up): (Security, String, Arc<AtomicU64>, GaveUpTx),
+    embedding: watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
+) {
+    tasks.spawn(async move {
+        let followed = client::watch_embedding_counting_losses(&security, &url, &lost, |s| {
+            embedding.send_replace(Some(Arc::new(s)));
+            async { true }
+        })
+        .await;
+        if let Err(e) = followed {
+            let _ = gave_up.send(e).await;
+        }
+    });
+}
+
+/// What the learner's stream tells the stepping thread: snapshots, the evaluation and
+/// finish controls, and this actor's share of the batch.
+type ToStepping = (
+    watch::Sender<Option<Arc<PolicySnapshot>>>,
+    std::sync::mpsc::Sender<Control>,
+    Arc<AtomicU64>,
+);
+
+type GaveUpTx = mpsc::Sender<client::GaveUp>;
+
+/// Follows the learner's policy stream (saying `hello`) into the stepping thread's ends.
+fn follow_learner(
+    tasks: &mut tokio::task::JoinSet<()>,
+    (security, url, gave_up): (Security, String, GaveUpTx),
+    hello: pb::WatchRequest,
+    (policy, control, share): ToStepping,
+) {
+    let id = hello.actor_id;
+    tasks.spawn(async move {
+        let followed = client::watch_policy(&security, &url, hello, |event| {
+            let go_on = match event {
+                PolicyEvent::Snapshot(s) => {
+                    policy.send_replace(Some(Arc::new(s)));
+                    true
+                }
+                // only a request addressed to this actor is run
+                PolicyEvent::Evaluate(r) if r.actor_id == id => {
+                    control.send(Control::Evaluate(r)).is_ok()
+                }
+                PolicyEvent::Evaluate(r) => {
+                    tracing::warn!(
+                        "actor {id}: an evaluation request for actor {} ignored",
+                        r.actor_id
+                    );
+                    true
+                }
+                PolicyEvent::Finish => {
+                    let _ = control.send(Control::Finish);
+                    false
+                }
+                PolicyEvent::Share(envs) => {
+                    share.store(u64::from(envs), Ordering::Relaxed);
+                    true
+                }
+            };
+            async move { go_on }
+        })
+        .await;
+        if let Err(e) = followed {
+            let _ = gave_up.send(e).await;
+        }
+    });
+}
+
+/// Streams the fragments to the learner (losing none while it is away) and sends the
+/// evaluation reports, retried while it is unavailable.
+fn push_to_learner(
+    tasks: &mut tokio::task::JoinSet<()>,
+    channel: jsae_net::security::Connection,
+    fragments: mpsc::Receiver<pb::RolloutFragment>,
+    mut reports: mpsc::Receiver<pb::EvalReport>,
+) {
+    let pushing = channel.clone();
+    tasks.spawn(push_forever("learner", fragments, move |stream| {
+        let mut c = pb::learner_client::LearnerClient::new(pushing.clone())
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        async move {
+            c.push_fragments(stream)
+                .await
+                .map(tonic::Response::into_inner)
+        }
+    }));
+    tasks.spawn(async move {
+        while let Some(report) = reports.recv().await {
+            let mut backoff = Backoff::default();
+            let mut c = pb::learner_client::LearnerClient::new(channel.clone());
+            for _ in 0..20 {
+                match c.report_eval(report.clone()).await {
+                    Ok(_) => break,
+                    Err(s) if s.code() == Code::Unavailable => {
+                        tokio::time::sleep(backoff.next_delay()).await;
+                    }
+                    Err(s) => {
+                        tracing::warn!("evaluation report refused: {}", s.message());
+                        break;
+                    }
+                }
+            }
+        }
+    });
 }
 
 /// The actor's command line (docs/src/operations/services.md).

@@ -10,7 +10,7 @@
 
 use anyhow::{Context, Result, bail};
 use jsae_agent::Embedding;
-use jsae_cli::plot::load_latest_embedding;
+use jsae_report::plot::load_latest_embedding;
 use jsae_run_dir::RunDir;
 use jsae_settings::TrainConfig;
 use jsae_wire::{ActionBatch, ActionSpace};

@@ -9,9 +9,9 @@
 //!   cargo run --release -p jsae-cli --example recommender_structure -- RUN_DIR [RUN_DIR ...]
 
 use anyhow::{Context, Result, bail};
-use jsae_cli::plot::load_latest_embedding;
 use jsae_envs::recsys::data::{load_sessions, split_sessions};
 use jsae_envs::recsys::model_handle;
+use jsae_report::plot::load_latest_embedding;
 use jsae_run_dir::RunDir;
 use jsae_settings::{EnvName, TrainConfig};
 use jsae_wire::ActionBatch;

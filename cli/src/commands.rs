@@ -20,42 +20,7 @@ pub enum Command {
     },
     /// Measure PPO update throughput and inference latency on both burn devices, and the
     /// services' ingest rates over loopback gRPC against in-process channels.
-    Bench {
-        /// Fewer repetitions (a smoke run).
-        #[arg(long)]
-        quick: bool,
-        /// Only the transport measurements.
-        #[arg(long)]
-        transport: bool,
-        /// Only the PPO update: time per 2,048 samples for each policy head on the old
-        /// (burn) and the new (fused) path, achieved GFLOP/s beside a GEMM peak measured in
-        /// the same run.
-        #[arg(long)]
-        learner: bool,
-        /// Only the actor ladder: end-to-end HalfCheetah PPO env-steps/s as separate
-        /// processes with each count of `--actors` (the batch one rollout of every actor),
-        /// beside raw env stepping and the learner's own limit measured in the same run.
-        #[arg(long)]
-        scaling: bool,
-        /// The ladder's actor counts, e.g. `1,2,4,8` [default: 1, 2, 4, ... up to the cores].
-        #[arg(long, value_delimiter = ',', requires = "scaling")]
-        actors: Vec<usize>,
-        /// Stepping threads of every actor in the ladder [default: 0, the run's rule: the
-        /// cores less one, over the actors].
-        #[arg(long, default_value_t = 0, requires = "scaling")]
-        step_threads: usize,
-        /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
-        /// env, the actor with batched inference, Gymnasium).
-        #[arg(long)]
-        mujoco: bool,
-        /// Only the Recommender service's latency (p50, p99) and throughput at concurrency
-        /// 64 over loopback gRPC.
-        #[arg(long)]
-        recommender: bool,
-        /// Environments per actor in the MuJoCo actor measurement.
-        #[arg(long, default_value_t = 16)]
-        envs: usize,
-    },
+    Bench(jsae_bench::BenchArgs),
     /// Run an experiment grid (envs x algos x seeds x setting overrides, from a sweep file)
     /// into one results folder, N runs at a time; finished runs are skipped, so a stopped
     /// sweep goes on when started again. Then `jsae report` the folder.
@@ -89,7 +54,7 @@ pub enum Command {
     Eval(crate::eval::EvalArgs),
     /// Draw the plots of run directories as SVG and PNG (of runs the services wrote, for
     /// example by hand), and with several runs one figure of them all (mean and band).
-    Plot(crate::plot::PlotArgs),
+    Plot(jsae_report::plot::PlotArgs),
     /// Replay an initial state and actions through a MuJoCo environment (parity check).
     EnvReplay {
         /// half-cheetah or ant.
@@ -146,7 +111,7 @@ pub fn run(command: Command) -> ExitCode {
     match command {
         Command::Embedder(args) => return jsae_embedder::service::main(args),
         Command::Learner(args) => {
-            return jsae_learner::service::main(args, crate::logs::logged_purchases);
+            return jsae_learner::service::main(args, jsae_train::logs::logged_purchases);
         }
         Command::Actor(args) => return jsae_actor::service::main(args),
         Command::Recommender(args) => return jsae_recommender::main(args),
@@ -158,146 +123,18 @@ pub fn run(command: Command) -> ExitCode {
     jsae_net::logging::init_logging();
     match command {
         Command::Train(args) => crate::train_command::main(&args),
-        Command::Bench {
-            quick,
-            transport,
-            learner,
-            scaling,
-            actors,
-            step_threads,
-            mujoco,
-            recommender,
-            envs,
-        } => {
-            if scaling {
-                if actors.contains(&0) {
-                    eprintln!("--actors: every count must be at least 1");
-                    return ExitCode::from(2);
-                }
-                let ladder = if actors.is_empty() {
-                    crate::bench::scaling::default_ladder()
-                } else {
-                    actors
-                };
-                print!(
-                    "{}",
-                    crate::bench::scaling::run(&ladder, step_threads, quick)
-                );
-                return ExitCode::SUCCESS;
-            }
-            if learner {
-                print!("{}", crate::bench::learner::run(quick));
-                return ExitCode::SUCCESS;
-            }
-            if recommender {
-                print!("{}", crate::bench::recommender::run(quick));
-                return ExitCode::SUCCESS;
-            }
-            if mujoco {
-                print!("{}", crate::bench::mujoco::run(envs.max(1), quick));
-                return ExitCode::SUCCESS;
-            }
-            if !transport {
-                print!("{}", crate::bench::run(quick));
-            }
-            print!("{}", crate::bench::transport::run(quick));
-            ExitCode::SUCCESS
-        }
-        Command::Config { run } => {
-            let text = run
-                .layered()
-                .and_then(|c| c.validate().map(|()| c))
-                .map_err(|e| e.to_string())
-                .and_then(|c| c.to_commented_toml().map_err(|e| e.to_string()));
-            match text {
-                Ok(text) => {
-                    print!("{text}");
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("jsae config: {e}");
-                    ExitCode::from(2)
-                }
-            }
-        }
-        Command::RecommenderBaseline { run, episodes } => {
-            let run = RunFlags {
-                env: Some(run.env.unwrap_or(EnvName::Recommender)),
-                ..run
-            };
-            let config = run
-                .layered()
-                .and_then(|c| c.validate().map(|()| c))
-                .map_err(|e| e.to_string());
-            let config = match config {
-                Ok(c) if c.env == EnvName::Recommender => c,
-                Ok(c) => {
-                    eprintln!(
-                        "jsae recommender-baseline: the settings are for --env {}",
-                        c.env.as_str()
-                    );
-                    return ExitCode::from(2);
-                }
-                Err(e) => {
-                    eprintln!("jsae recommender-baseline: {e}");
-                    return ExitCode::from(2);
-                }
-            };
-            match jsae_recommender::baseline::baselines(
-                &config,
-                episodes.max(1),
-                config.eval_seed(),
-            ) {
-                Ok(all) => {
-                    for b in all {
-                        println!("{}", serde_json::to_string(&b).unwrap_or_default());
-                    }
-                    ExitCode::SUCCESS
-                }
-                Err(e) => {
-                    eprintln!("jsae recommender-baseline: {e}");
-                    ExitCode::FAILURE
-                }
-            }
-        }
+        Command::Bench(args) => jsae_bench::main(args),
+        Command::Config { run } => print_config(&run),
+        Command::RecommenderBaseline { run, episodes } => recommender_baseline(run, episodes),
         Command::Sweep { file, jobs, out } => crate::experiments::sweep(&file, jobs, &out),
         Command::Eval(args) => crate::eval::main(&args),
-        Command::RecordInfo { file } => match jsae_record::summarize(&file) {
-            Ok(summary) => {
-                println!(
-                    "{}",
-                    serde_json::to_string_pretty(&summary).unwrap_or_default()
-                );
-                ExitCode::SUCCESS
-            }
-            Err(e) => {
-                eprintln!("jsae record-info: {e}");
-                ExitCode::from(2)
-            }
-        },
+        Command::RecordInfo { file } => record_info(&file),
         Command::RecommenderEval(args) => crate::recommender_eval::main(&args),
         Command::Report { dir, out } => {
             crate::experiments::report(&dir, out.as_deref().unwrap_or(&dir))
         }
-        Command::Plot(args) => crate::plot::main(&args),
-        Command::EnvReplay { env, input, output } => {
-            let run = || -> Result<usize, String> {
-                let reader = std::fs::File::open(&input)
-                    .map(std::io::BufReader::new)
-                    .map_err(|e| format!("{}: {e}", input.display()))?;
-                let writer = std::fs::File::create(&output)
-                    .map(std::io::BufWriter::new)
-                    .map_err(|e| format!("{}: {e}", output.display()))?;
-                crate::replay::replay(env, reader, writer).map_err(|e| e.to_string())
-            };
-            match run() {
-                Ok(_) => ExitCode::SUCCESS,
-                Err(reason) => {
-                    eprintln!("jsae env-replay: {reason}");
-                    ExitCode::from(2)
-                }
-            }
-        }
+        Command::Plot(args) => jsae_report::plot::main(&args),
+        Command::EnvReplay { env, input, output } => env_replay(env, &input, &output),
         Command::Embedder(_)
         | Command::Learner(_)
         | Command::Actor(_)
@@ -305,5 +142,99 @@ pub fn run(command: Command) -> ExitCode {
         | Command::Health(_)
         | Command::Recommend(_)
         | Command::SubmitSessions(_) => ExitCode::SUCCESS,
+    }
+}
+
+/// `jsae config`: the settings the flags make, as a commented settings file.
+fn print_config(run: &RunFlags) -> ExitCode {
+    let text = run
+        .layered()
+        .and_then(|c| c.validate().map(|()| c))
+        .map_err(|e| e.to_string())
+        .and_then(|c| c.to_commented_toml().map_err(|e| e.to_string()));
+    match text {
+        Ok(text) => {
+            print!("{text}");
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("jsae config: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// `jsae recommender-baseline`: the reference recommenders' returns, one JSON line each.
+fn recommender_baseline(run: RunFlags, episodes: usize) -> ExitCode {
+    let run = RunFlags {
+        env: Some(run.env.unwrap_or(EnvName::Recommender)),
+        ..run
+    };
+    let config = run
+        .layered()
+        .and_then(|c| c.validate().map(|()| c))
+        .map_err(|e| e.to_string());
+    let config = match config {
+        Ok(c) if c.env == EnvName::Recommender => c,
+        Ok(c) => {
+            eprintln!(
+                "jsae recommender-baseline: the settings are for --env {}",
+                c.env.as_str()
+            );
+            return ExitCode::from(2);
+        }
+        Err(e) => {
+            eprintln!("jsae recommender-baseline: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    match jsae_recommender::baseline::baselines(&config, episodes.max(1), config.eval_seed()) {
+        Ok(all) => {
+            for b in all {
+                println!("{}", serde_json::to_string(&b).unwrap_or_default());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("jsae recommender-baseline: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// `jsae record-info`: a recording's summary as JSON.
+fn record_info(file: &std::path::Path) -> ExitCode {
+    match jsae_record::summarize(file) {
+        Ok(summary) => {
+            println!(
+                "{}",
+                serde_json::to_string_pretty(&summary).unwrap_or_default()
+            );
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("jsae record-info: {e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// `jsae env-replay`: the Gymnasium parity check's replay of recorded actions.
+fn env_replay(env: EnvName, input: &std::path::Path, output: &std::path::Path) -> ExitCode {
+    let run = || -> Result<usize, String> {
+        let reader = std::fs::File::open(input)
+            .map(std::io::BufReader::new)
+            .map_err(|e| format!("{}: {e}", input.display()))?;
+        let writer = std::fs::File::create(output)
+            .map(std::io::BufWriter::new)
+            .map_err(|e| format!("{}: {e}", output.display()))?;
+        crate::replay::replay(env, reader, writer).map_err(|e| e.to_string())
+    };
+    match run() {
+        Ok(_) => ExitCode::SUCCESS,
+        Err(reason) => {
+            eprintln!("jsae env-replay: {reason}");
+            ExitCode::from(2)
+        }
     }
 }

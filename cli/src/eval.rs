@@ -76,7 +76,7 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
         ),
         // the version summary.json names where it is there (the newest otherwise)
         None => {
-            let summary = crate::plot::read_summary(&dir).map_err(|e| (2, e.to_string()))?;
+            let summary = jsae_report::plot::read_summary(&dir).map_err(|e| (2, e.to_string()))?;
             let named = summary
                 .map(|s| {
                     (
@@ -100,7 +100,7 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
     let mut worker = ActorWorker::new(&config, 0, config.device).map_err(|e| (1, e.to_string()))?;
     if config.algo.representation().needs_embedder() {
         // the version summary.json names (the newest where the run has no summary yet)
-        let emb = crate::plot::run_embedding(&dir)
+        let emb = jsae_report::plot::run_embedding(&dir)
             .map_err(|e| (2, format!("{}: {e}", dir.path().display())))?
             .ok_or_else(|| {
                 (

@@ -26,7 +26,7 @@ pub fn sweep(file: &Path, jobs: Option<usize>, out: &Path) -> ExitCode {
         eprintln!("jsae sweep: --jobs must be positive");
         return ExitCode::from(2);
     }
-    let exe = match crate::launch::current_exe() {
+    let exe = match jsae_train::launch::current_exe() {
         Ok(exe) => exe,
         Err(e) => {
             eprintln!("jsae sweep: {e}");
@@ -73,7 +73,7 @@ pub fn sweep(file: &Path, jobs: Option<usize>, out: &Path) -> ExitCode {
 
 /// `jsae report DIR [--out OUT]`: prints the markdown table and the files written.
 pub fn report(dir: &Path, out: &Path) -> ExitCode {
-    match jsae_experiments::report(dir, out) {
+    match jsae_report::report(dir, out) {
         Ok(made) => {
             println!("{}", made.markdown);
             for p in &made.written {

@@ -11,9 +11,9 @@ use jsae_nn::DeviceKind;
 use jsae_run_dir::{RunDir, Weights};
 use jsae_settings::{RunFlags, TrainConfig};
 
-use crate::launch;
-use crate::progress::Progress;
-use crate::train::{RunOptions, train_one_process_with};
+use jsae_train::launch;
+use jsae_train::progress::Progress;
+use jsae_train::{RunOptions, train_one_process_with};
 
 #[derive(Args, Debug)]
 pub struct TrainArgs {

@@ -56,15 +56,18 @@ fn all_json(text: &[u8], what: &str) {
 
 #[test]
 fn with_json_logs_every_line_a_service_writes_is_json() {
-    // a refusal before the service runs
-    let bad = Command::new(env!("CARGO_BIN_EXE_jsae-learner"))
-        .args(["--log-format", "json", "--config", "/nonexistent/run.toml"])
-        .args(["--seed", "1", "--out", "/nonexistent/x"])
-        .output()
-        .expect("runs");
-    assert_eq!(bad.status.code(), Some(2));
-    assert!(!bad.stderr.is_empty());
-    all_json(&bad.stderr, "refusal");
+    // refusals before the service runs: a settings file that is not there, a missing flag
+    for missing in [&["--listen", "127.0.0.1:0"][..], &[]] {
+        let bad = Command::new(env!("CARGO_BIN_EXE_jsae-learner"))
+            .args(["--log-format", "json", "--config", "/nonexistent/run.toml"])
+            .args(["--seed", "1", "--out", "/nonexistent/x"])
+            .args(missing)
+            .output()
+            .expect("runs");
+        assert_eq!(bad.status.code(), Some(2));
+        assert!(!bad.stderr.is_empty());
+        all_json(&bad.stderr, "refusal");
+    }
 
     // the address it listens on, then its log until SIGTERM
     let dir = std::env::temp_dir().join(format!("jsae-json-logs-{}", std::process::id()));

@@ -163,21 +163,13 @@ impl Drop for Lock {
     }
 }
 
-/// Runs every unfinished run of `grid`; `note` hears one line per started and ended run.
-///
-/// A run is finished when its `summary.json` reads and its `--config` file is the one this
-/// grid gives it; a run of an edited grid (other env steps, another overlay) is trained
-/// again. Every run's settings are checked before anything is written or started.
-pub fn run_sweep(
+/// The runs of `grid` still to train in `out`, each with its paths and settings file (the
+/// finished ones counted as skipped); every one's settings checked first.
+fn unfinished_runs(
     grid: &Grid,
-    sweep_text: &str,
-    options: &SweepOptions,
-    note: &(dyn Fn(&str) + Sync),
-) -> Result<SweepOutcome, SweepError> {
-    let out = &options.out;
-    std::fs::create_dir_all(out).map_err(io(out))?;
-    let _lock = Lock::take(out)?;
-    let mut outcome = SweepOutcome::default();
+    out: &Path,
+    outcome: &mut SweepOutcome,
+) -> Result<Vec<(RunSpec, RunPaths, String)>, SweepError> {
     let mut todo = Vec::new();
     let check = out.join(".settings-check.toml");
     for run in grid.runs() {
@@ -202,6 +194,25 @@ pub fn run_sweep(
         todo.push((run, paths, config));
     }
     let _ = std::fs::remove_file(&check);
+    Ok(todo)
+}
+
+/// Runs every unfinished run of `grid`; `note` hears one line per started and ended run.
+///
+/// A run is finished when its `summary.json` reads and its `--config` file is the one this
+/// grid gives it; a run of an edited grid (other env steps, another overlay) is trained
+/// again. Every run's settings are checked before anything is written or started.
+pub fn run_sweep(
+    grid: &Grid,
+    sweep_text: &str,
+    options: &SweepOptions,
+    note: &(dyn Fn(&str) + Sync),
+) -> Result<SweepOutcome, SweepError> {
+    let out = &options.out;
+    std::fs::create_dir_all(out).map_err(io(out))?;
+    let _lock = Lock::take(out)?;
+    let mut outcome = SweepOutcome::default();
+    let todo = unfinished_runs(grid, out, &mut outcome)?;
     let sweep_file = out.join("sweep.toml");
     std::fs::write(&sweep_file, sweep_text).map_err(io(&sweep_file))?;
     let mut queue = VecDeque::new();

@@ -271,6 +271,13 @@ impl PpoConfig {
 
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
+        self.validate_schedule()?;
+        self.validate_recommender()?;
+        self.validate_sizes()
+    }
+
+    /// The batch, the rates, the discounts, the clip and the entropy cap's schedule.
+    fn validate_schedule(&self) -> Result<(), String> {
         if self.batch_steps == 0 || self.epochs == 0 || self.minibatch_size == 0 {
             return Err(
                 "ppo.batch_steps, ppo.epochs and ppo.minibatch_size must be positive".into(),
@@ -319,6 +326,11 @@ impl PpoConfig {
                 self.entropy_cap_anneal_to
             ));
         }
+        Ok(())
+    }
+
+    /// The recommender's: the next-purchase loss, the pair feature, the logged purchases.
+    fn validate_recommender(&self) -> Result<(), String> {
         if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
             return Err("ppo.next_purchase_coef must be a finite number >= 0".into());
         }
@@ -363,6 +375,11 @@ impl PpoConfig {
                     .into(),
             );
         }
+        Ok(())
+    }
+
+    /// The networks' and the batch's sizes against the limits a settings file may ask for.
+    fn validate_sizes(&self) -> Result<(), String> {
         if self.hidden.is_empty() || self.hidden.contains(&0) {
             return Err("ppo.hidden needs at least one positive width".into());
         }

@@ -178,119 +178,38 @@ fn unreachable_roundtrip() -> ! {
 }
 
 impl TrainConfig {
-    /// The defaults for an environment and algorithm.
+    /// The defaults for an environment and algorithm: the common ones, then those of the
+    /// action-embedding algorithms, then the environment's own (each with the measurement
+    /// that set it).
     pub fn defaults(env: EnvName, algo: Algo) -> Self {
-        let mut embedding = EmbeddingConfig::default();
-        let mut ppo = PpoConfig::default();
-        let mut exploration = ExplorationConfig::default();
-        if matches!(env, EnvName::Gridworld | EnvName::GridworldDiscrete) {
-            // Random play finds the goal around the solid L in a few % of episodes and the
-            // policy learns to avoid walls before it has: without this bonus 2 of 5 seeds
-            // found the goal at all in 500k steps; with it every seed tried did.
-            exploration.bonus = 0.1;
-        }
+        let mut c = Self::common_defaults(env, algo);
         // The baselines act in an action-embedding space too, with JSAE's PPO settings.
-        let embedded_actions = algo.representation().decodes_actions();
-        if embedded_actions {
-            ppo.gae_lambda = 0.97;
-            ppo.tanh_mean = true;
-            ppo.ent_coef = 0.05;
+        if algo.representation().decodes_actions() {
+            c.ppo.gae_lambda = 0.97;
+            c.ppo.tanh_mean = true;
+            c.ppo.ent_coef = 0.05;
         }
-        if env == EnvName::Gridworld && embedded_actions {
-            // With the continuous state the evaluation's mean action ran into a wall for the
-            // whole episode on 3 of 3 seeds at 0.05 (the sampled policy reached the goal in
-            // every training episode); at 0.01, 1 of 3 (seeds 2 and 3 solved it).
-            ppo.ent_coef = 0.01;
+        match env {
+            EnvName::Gridworld | EnvName::GridworldDiscrete => c.gridworld_defaults(),
+            EnvName::Slotmachine => c.slotmachine_defaults(),
+            EnvName::Recommender => c.recommender_defaults(),
+            _ if env.is_mujoco() => c.mujoco_defaults(),
+            _ => {}
         }
-        if env == EnvName::Slotmachine {
-            // The next reel position is `position + advance mod 6`: a linear T on the two
-            // embeddings cannot express it, and 30 epochs of a tanh T leave it near chance.
-            // With these settings the model loss after pre-training is 0.9 nats over the four
-            // reels (chance: 7.2) and the policy improves; see docs/src/experiments/slotmachine.md.
-            embedding.state_dim = 16;
-            embedding.action_dim = 4;
-            embedding.transition_hidden = 128;
-            embedding.pretrain_epochs = 200;
-            embedding.update_steps = 200;
-            ppo.gamma = 0.9;
-            ppo.ent_coef = 0.0;
-            // Measured over 5 seeds at 300k steps (results/sweeps/slotmachine-variants.toml):
-            // with 25 random transitions per action (102,400, a third of the budget) and an
-            // initial std of 1 in E the policy stayed near random (eval 157 against PPO's 282);
-            // with 5 (the factored T is fitted from them, 0.97 nats) and 0.3 it reaches
-            // 400-470 (docs/src/experiments/slotmachine.md).
-            embedding.pretrain_per_action = 5;
-            ppo.init_log_std = -1.2;
-        }
-        // One rollout of every actor's 16 environments is a batch (it grows with the actors),
-        // except where a larger batch shared among the actors was measured to learn better.
-        let (mut envs_per_actor, mut batch_envs) = (16, None);
-        if env == EnvName::GridworldDiscrete && embedded_actions {
-            // A batch of 64 environments x 128 steps (8,192), shared among the actors present
-            // (each has 64 and steps its share): at 500k steps, 512 actions, one actor in one
-            // process, seeds 2051-2080, the deterministic evaluation solved 28 of 30 runs
-            // against 27 with 32 environments and 22 with 16 (more runs found the goal, and
-            // fewer greedy loops; docs/src/experiments/loop-500k-batch.md).
-            (envs_per_actor, batch_envs) = (64, Some(64));
-        }
-        let mut env_steps = 500_000;
-        if env == EnvName::Recommender {
-            // 835 items: a random policy recommends each one about 120 times in the
-            // pre-training set. Dimensions from the paper's grid ({8,16,32} x {4,8,12}).
-            env_steps = 300_000;
-            embedding.state_dim = 16;
-            embedding.action_dim = 8;
-            embedding.pretrain_transitions = 100_000;
-            if algo == Algo::Ppo {
-                // Measured at 2M steps (docs/src/experiments/recommender.md): the reward alone
-                // leaves PPO at the popular items (1.15 over 5 seeds), the next-purchase loss
-                // and a pair feature take it to 6.40; interaction alone does not reach the
-                // greedy rule in 2M steps, the logs the model is built from do. A network
-                // pre-trained on them stays 0.28 below the rule (5 seeds); the counts as a
-                // fixed prior in the logits are at its level, and PPO as a contextual bandit
-                // (planning adds 0.07) must move them slowly: at lr 1e-4 seed 1001 fell from
-                // 7.99 to 7.77, at 1e-5 7.98 (results/sweeps/recommender-prior.toml).
-                ppo.hidden = vec![128, 128];
-                ppo.logged_prior = true;
-                ppo.gamma = 0.0;
-                ppo.lr = 1e-5;
-            }
-        }
-        if env.is_mujoco() {
-            // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
-            // 16 envs x 128; 32 minibatches of 64; clipped value loss), with observation
-            // normalisation in the policy and, for JSAE, in phi.
-            env_steps = 1_000_000;
-            ppo.normalize_obs = true;
-            ppo.minibatch_size = 64;
-            ppo.clip_value_loss = true;
-            ppo.ent_coef = 0.0;
-            embedding.normalize_states = true;
-            embedding.transition_hidden = 128;
-            embedding.pretrain_epochs = 20;
-            embedding.update_every = 50_000;
-            (embedding.state_dim, embedding.action_dim) = match env {
-                EnvName::Ant => (32, 8),
-                _ => (20, 6),
-            };
-            if embedded_actions {
-                // The std is over E, and f stretches E: near g(box) a unit step in E moves
-                // the torques by about 3.8 on HalfCheetah and 2.2-2.5 on Ant (measured on the
-                // default runs with the example action_box_coverage). These starts are about
-                // 1 and 0.8 in torques (PPO starts at 1). With 0.6 in E (2.3 in torques, most
-                // samples saturated) JSAE trailed PPO on HalfCheetah, with 0.26 it does not
-                // (docs/src/experiments/mujoco.md); Ant at 0.6 learned to fall at once.
-                ppo.init_log_std = if env == EnvName::Ant { -1.0 } else { -1.35 };
-            }
-        }
+        c
+    }
+
+    /// What every environment starts from: one rollout of every actor's 16 environments is a
+    /// batch (it grows with the actors), 500k env steps.
+    fn common_defaults(env: EnvName, algo: Algo) -> Self {
         Self {
             env,
             algo,
             seed: 1,
-            env_steps,
+            env_steps: 500_000,
             actors: 1,
-            envs_per_actor,
-            batch_envs,
+            envs_per_actor: 16,
+            batch_envs: None,
             step_threads: if env.is_mujoco() { 0 } else { 1 },
             rollout_len: 128,
             rollouts_per_policy: if env.is_mujoco() { 2 } else { 1 },
@@ -302,9 +221,111 @@ impl TrainConfig {
             one_process: false,
             init_from: None,
             environment: EnvConfig::default(),
-            embedding,
-            ppo,
-            exploration,
+            embedding: EmbeddingConfig::default(),
+            ppo: PpoConfig::default(),
+            exploration: ExplorationConfig::default(),
+        }
+    }
+
+    /// The gridworlds'.
+    fn gridworld_defaults(&mut self) {
+        let embedded_actions = self.algo.representation().decodes_actions();
+        // Random play finds the goal around the solid L in a few % of episodes and the
+        // policy learns to avoid walls before it has: without this bonus 2 of 5 seeds
+        // found the goal at all in 500k steps; with it every seed tried did.
+        self.exploration.bonus = 0.1;
+        if self.env == EnvName::Gridworld && embedded_actions {
+            // With the continuous state the evaluation's mean action ran into a wall for the
+            // whole episode on 3 of 3 seeds at 0.05 (the sampled policy reached the goal in
+            // every training episode); at 0.01, 1 of 3 (seeds 2 and 3 solved it).
+            self.ppo.ent_coef = 0.01;
+        }
+        if self.env == EnvName::GridworldDiscrete && embedded_actions {
+            // A batch of 64 environments x 128 steps (8,192), shared among the actors present
+            // (each has 64 and steps its share): at 500k steps, 512 actions, one actor in one
+            // process, seeds 2051-2080, the deterministic evaluation solved 28 of 30 runs
+            // against 27 with 32 environments and 22 with 16 (more runs found the goal, and
+            // fewer greedy loops; docs/src/experiments/loop-500k-batch.md).
+            (self.envs_per_actor, self.batch_envs) = (64, Some(64));
+        }
+    }
+
+    /// The slotmachine's.
+    fn slotmachine_defaults(&mut self) {
+        // The next reel position is `position + advance mod 6`: a linear T on the two
+        // embeddings cannot express it, and 30 epochs of a tanh T leave it near chance.
+        // With these settings the model loss after pre-training is 0.9 nats over the four
+        // reels (chance: 7.2) and the policy improves; see docs/src/experiments/slotmachine.md.
+        self.embedding.state_dim = 16;
+        self.embedding.action_dim = 4;
+        self.embedding.transition_hidden = 128;
+        self.embedding.pretrain_epochs = 200;
+        self.embedding.update_steps = 200;
+        self.ppo.gamma = 0.9;
+        self.ppo.ent_coef = 0.0;
+        // Measured over 5 seeds at 300k steps (results/sweeps/slotmachine-variants.toml):
+        // with 25 random transitions per action (102,400, a third of the budget) and an
+        // initial std of 1 in E the policy stayed near random (eval 157 against PPO's 282);
+        // with 5 (the factored T is fitted from them, 0.97 nats) and 0.3 it reaches
+        // 400-470 (docs/src/experiments/slotmachine.md).
+        self.embedding.pretrain_per_action = 5;
+        self.ppo.init_log_std = -1.2;
+    }
+
+    /// The recommender's.
+    fn recommender_defaults(&mut self) {
+        // 835 items: a random policy recommends each one about 120 times in the
+        // pre-training set. Dimensions from the paper's grid ({8,16,32} x {4,8,12}).
+        self.env_steps = 300_000;
+        self.embedding.state_dim = 16;
+        self.embedding.action_dim = 8;
+        self.embedding.pretrain_transitions = 100_000;
+        if self.algo == Algo::Ppo {
+            // Measured at 2M steps (docs/src/experiments/recommender.md): the reward alone
+            // leaves PPO at the popular items (1.15 over 5 seeds), the next-purchase loss
+            // and a pair feature take it to 6.40; interaction alone does not reach the
+            // greedy rule in 2M steps, the logs the model is built from do. A network
+            // pre-trained on them stays 0.28 below the rule (5 seeds); the counts as a
+            // fixed prior in the logits are at its level, and PPO as a contextual bandit
+            // (planning adds 0.07) must move them slowly: at lr 1e-4 seed 1001 fell from
+            // 7.99 to 7.77, at 1e-5 7.98 (results/sweeps/recommender-prior.toml).
+            self.ppo.hidden = vec![128, 128];
+            self.ppo.logged_prior = true;
+            self.ppo.gamma = 0.0;
+            self.ppo.lr = 1e-5;
+        }
+    }
+
+    /// HalfCheetah's and Ant's.
+    fn mujoco_defaults(&mut self) {
+        // CleanRL's ppo_continuous_action where it applies (2048 steps per update, here
+        // 16 envs x 128; 32 minibatches of 64; clipped value loss), with observation
+        // normalisation in the policy and, for JSAE, in phi.
+        self.env_steps = 1_000_000;
+        self.ppo.normalize_obs = true;
+        self.ppo.minibatch_size = 64;
+        self.ppo.clip_value_loss = true;
+        self.ppo.ent_coef = 0.0;
+        self.embedding.normalize_states = true;
+        self.embedding.transition_hidden = 128;
+        self.embedding.pretrain_epochs = 20;
+        self.embedding.update_every = 50_000;
+        (self.embedding.state_dim, self.embedding.action_dim) = match self.env {
+            EnvName::Ant => (32, 8),
+            _ => (20, 6),
+        };
+        if self.algo.representation().decodes_actions() {
+            // The std is over E, and f stretches E: near g(box) a unit step in E moves
+            // the torques by about 3.8 on HalfCheetah and 2.2-2.5 on Ant (measured on the
+            // default runs with the example action_box_coverage). These starts are about
+            // 1 and 0.8 in torques (PPO starts at 1). With 0.6 in E (2.3 in torques, most
+            // samples saturated) JSAE trailed PPO on HalfCheetah, with 0.26 it does not
+            // (docs/src/experiments/mujoco.md); Ant at 0.6 learned to fall at once.
+            self.ppo.init_log_std = if self.env == EnvName::Ant {
+                -1.0
+            } else {
+                -1.35
+            };
         }
     }
 

@@ -109,7 +109,7 @@ pub async fn start_learner_secured(
     let (stop, signal) = stop_signal();
     let options = LearnerOptions {
         embedder,
-        logged: jsae_cli::logs::logged_purchases(config)
+        logged: jsae_train::logs::logged_purchases(config)
             .expect("the logged purchases")
             .map(std::sync::Arc::new),
         resume: false,

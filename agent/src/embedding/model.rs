@@ -89,6 +89,56 @@ pub fn uniform_linear(
     nn::linear_from_host(w, b, d_in, d_out, device)
 }
 
+/// g and f: the g-table (discrete actions), or g's linear layer (not RA's, which has no
+/// action encoder: its embeddings come from the inverse model) and the decoder MLP.
+type ActionParts = (Option<Param<Tensor<2>>>, Option<Linear>, Option<Mlp>);
+
+fn action_parts(
+    config: &EmbeddingConfig,
+    representation: Representation,
+    actions: &ActionSpace,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) -> ActionParts {
+    let d = config.action_dim;
+    let ra = representation == Representation::ActionRepresentation;
+    match actions {
+        ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
+        ActionSpace::Continuous { dim, .. } => {
+            // RA has no action encoder: its embeddings come from the inverse model.
+            let g = (!ra).then(|| uniform_linear(*dim, d, false, rng, device));
+            let hidden = match representation {
+                Representation::AutoEncoder => vec![],
+                _ => vec![config.decoder_hidden],
+            };
+            let decoder = MlpConfig {
+                input: d,
+                hidden,
+                output: *dim,
+                output_gain: 1.0,
+                skip: false,
+                zero_inputs: 0,
+            };
+            (None, g, Some(decoder.init(rng, device)))
+        }
+    }
+}
+
+/// Where each factor's one-hot columns start in phi's table (categorical states).
+fn factor_offsets(states: &StateSpace) -> Vec<u32> {
+    match states {
+        StateSpace::Categorical { sizes } => sizes
+            .iter()
+            .scan(0u32, |acc, &s| {
+                let o = *acc;
+                *acc += s as u32;
+                Some(o)
+            })
+            .collect(),
+        StateSpace::Real { .. } => Vec::new(),
+    }
+}
+
 impl EmbeddingModel {
     /// A freshly initialised model of `representation` for the given spaces (JSAE's
     /// parameters are drawn in the same order as before the baselines existed, so a seed
@@ -102,7 +152,6 @@ impl EmbeddingModel {
         device: &Device,
     ) -> Self {
         let (m, d) = (config.state_dim, config.action_dim);
-        let ra = representation == Representation::ActionRepresentation;
         let (phi_table, phi_linear) = match states {
             StateSpace::Categorical { sizes } => (
                 Some(uniform_table(sizes.iter().sum(), m, rng, device)),
@@ -110,26 +159,8 @@ impl EmbeddingModel {
             ),
             StateSpace::Real { dim } => (None, Some(uniform_linear(*dim, m, false, rng, device))),
         };
-        let (g_table, g_linear, decoder) = match actions {
-            ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
-            ActionSpace::Continuous { dim, .. } => {
-                // RA has no action encoder: its embeddings come from the inverse model.
-                let g = (!ra).then(|| uniform_linear(*dim, d, false, rng, device));
-                let hidden = match representation {
-                    Representation::AutoEncoder => vec![],
-                    _ => vec![config.decoder_hidden],
-                };
-                let decoder = MlpConfig {
-                    input: d,
-                    hidden,
-                    output: *dim,
-                    output_gain: 1.0,
-                    skip: false,
-                    zero_inputs: 0,
-                };
-                (None, g, Some(decoder.init(rng, device)))
-            }
-        };
+        let (g_table, g_linear, decoder) =
+            action_parts(config, representation, actions, rng, device);
         let mut net = EmbeddingNet {
             phi_table,
             phi_linear,
@@ -173,17 +204,7 @@ impl EmbeddingModel {
                 inverse_heads(&mut net, config, actions, rng, device)
             }
         }
-        let offsets = match states {
-            StateSpace::Categorical { sizes } => sizes
-                .iter()
-                .scan(0u32, |acc, &s| {
-                    let o = *acc;
-                    *acc += s as u32;
-                    Some(o)
-                })
-                .collect(),
-            StateSpace::Real { .. } => Vec::new(),
-        };
+        let offsets = factor_offsets(states);
         Self {
             net,
             representation,

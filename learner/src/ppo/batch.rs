@@ -97,6 +97,39 @@ impl BatchBuffers {
     }
 }
 
+/// A fragment's steps for GAE: each step's reward and value, and the value after it: the
+/// next step's, a truncated episode's bootstrap (`cut_v`, in order), or the value after the
+/// fragment (`tail_v`).
+fn gae_steps(
+    f: &RolloutFragment,
+    v: &[f32],
+    cut_v: &[f32],
+    tail_v: f32,
+    ends: &[bool],
+) -> Vec<GaeStep> {
+    let t_len = f.len();
+    let mut cut = 0;
+    (0..t_len)
+        .map(|t| {
+            let next_value = if f.truncated[t] {
+                cut += 1;
+                cut_v[cut - 1]
+            } else if t + 1 < t_len {
+                v[t + 1]
+            } else {
+                tail_v
+            };
+            GaeStep {
+                reward: f.rewards[t],
+                value: v[t],
+                next_value,
+                terminated: f.terminated[t],
+                episode_end: ends[t],
+            }
+        })
+        .collect()
+}
+
 impl Batch {
     pub(super) fn build(
         policy: &Policy,
@@ -169,26 +202,7 @@ impl Batch {
             if let Some(s) = scaler.as_deref_mut() {
                 s.scale((f.actor_id, f.env_index), &mut f.rewards, &ends);
             }
-            let mut cut = 0;
-            let steps: Vec<GaeStep> = (0..t_len)
-                .map(|t| {
-                    let next_value = if f.truncated[t] {
-                        cut += 1;
-                        cut_v[cut - 1]
-                    } else if t + 1 < t_len {
-                        v[t + 1]
-                    } else {
-                        tail_v
-                    };
-                    GaeStep {
-                        reward: f.rewards[t],
-                        value: v[t],
-                        next_value,
-                        terminated: f.terminated[t],
-                        episode_end: ends[t],
-                    }
-                })
-                .collect();
+            let steps = gae_steps(&f, v, cut_v, tail_v, &ends);
             let (adv, ret) = gae(&steps, config.gamma as f32, config.gae_lambda as f32);
             if let Some(n) = purchase_items {
                 next_purchases(&f, x_dim, n, &mut out.next_purchase);

@@ -100,26 +100,10 @@ pub async fn serve(
     options: LearnerOptions,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> anyhow::Result<Option<Summary>> {
-    // a large model takes a while to build: off the runtime, so that a signal is heard
     let mut shutdown = Box::pin(shutdown);
-    let build = tokio::task::spawn_blocking({
-        let config = config.clone();
-        move || Learner::for_run(&config)
-    });
-    let learner = tokio::select! {
-        built = build => built?,
-        () = &mut shutdown => {
-            tracing::info!("learner: stopped while building the model");
-            return Ok(None);
-        }
+    let Some(run) = open_run(&config, options.resume, &mut shutdown).await? else {
+        return Ok(None);
     };
-    let resume = match options.resume {
-        true => Resume::Required,
-        false => Resume::IfCheckpoint,
-    };
-    let run = LearnerRun::open(&config, learner, resume, &mut |line| {
-        tracing::info!("{line}")
-    })?;
     let learner = run.learner();
     let (queue_tx, queue_rx) = mpsc::channel(QUEUE);
     let (publish_tx, publish_rx) = watch::channel(PolicyState::default());
@@ -142,58 +126,12 @@ pub async fn serve(
         actor_ids: evaluation::ActorIds::default(),
     };
     // set by the loop from `embedding.hold_from` of the run on: the embedder is asked to hold
-    let (hold_tx, mut hold_rx) = watch::channel(false);
+    let (hold_tx, hold_rx) = watch::channel(false);
     if let Some(url) = options.embedder.clone() {
-        let (stop, security, at) = (
-            net::stopped(&stop_rx),
-            options.security.clone(),
-            url.clone(),
-        );
-        tokio::spawn(async move {
-            let hold = async {
-                if hold_rx.wait_for(|held| *held).await.is_ok() {
-                    client::hold_embedding(&security, &at).await;
-                }
-            };
-            tokio::select! {
-                () = hold => {}
-                () = stop => {}
-            }
-        });
-        let queue = queue_tx.clone();
-        let stop = net::stopped(&stop_rx);
-        let security = options.security.clone();
-        tokio::spawn(async move {
-            let follow = client::watch_embedding(&security, &url, |s| {
-                let queue = queue.clone();
-                published_tx.send_if_modified(|newest| {
-                    let newer = s.version > *newest;
-                    *newest = (*newest).max(s.version);
-                    newer
-                });
-                async move { queue.send(Input::Embedding(s)).await.is_ok() }
-            });
-            tokio::select! {
-                followed = follow => if let Err(e) = followed {
-                    tracing::error!("learner: {e}; no new embedding will arrive");
-                },
-                () = stop => {}
-            }
-        });
+        let follow = (url, options.security.clone(), stop_rx.clone());
+        follow_embedder(follow, hold_rx, queue_tx.clone(), published_tx);
     }
-    // the round clock's tick; a weak sender, so that the queue still closes when the
-    // service is gone
-    let ticks = queue_tx.downgrade();
-    tokio::spawn(async move {
-        let mut every = tokio::time::interval(TICK);
-        every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
-        loop {
-            every.tick().await;
-            let Some(queue) = ticks.upgrade() else { break };
-            // a full queue has work enough: the tick is not needed then
-            let _ = queue.try_send(Input::Tick);
-        }
-    });
+    tick(&queue_tx);
     drop(queue_tx);
     let run = LearnerLoop {
         config,
@@ -244,6 +182,91 @@ pub async fn serve(
         Ok(Err(e)) => Err(e),
         Err(_) => anyhow::bail!("the learner thread panicked"),
     }
+}
+
+/// Builds the learner (off the runtime: a large model takes a while, and a signal must be
+/// heard meanwhile) and opens it on the run directory; None when `shutdown` came first.
+async fn open_run(
+    config: &TrainConfig,
+    resume: bool,
+    shutdown: &mut (impl Future<Output = ()> + Unpin),
+) -> anyhow::Result<Option<LearnerRun>> {
+    let build = tokio::task::spawn_blocking({
+        let config = config.clone();
+        move || Learner::for_run(&config)
+    });
+    let learner = tokio::select! {
+        built = build => built?,
+        () = shutdown => {
+            tracing::info!("learner: stopped while building the model");
+            return Ok(None);
+        }
+    };
+    let resume = match resume {
+        true => Resume::Required,
+        false => Resume::IfCheckpoint,
+    };
+    let run = LearnerRun::open(config, learner, resume, &mut |line| {
+        tracing::info!("{line}")
+    })?;
+    Ok(Some(run))
+}
+
+/// Follows the embedder at `url` (its snapshots into the queue, the newest version into
+/// `published`) and asks it to hold its embedding once `hold` says so, until the service
+/// stops.
+fn follow_embedder(
+    (url, security, stopping): (String, Security, watch::Receiver<bool>),
+    mut hold: watch::Receiver<bool>,
+    queue: mpsc::Sender<Input>,
+    published: watch::Sender<u64>,
+) {
+    let (holding, at) = (security.clone(), url.clone());
+    let (until, stop) = (net::stopped(&stopping), net::stopped(&stopping));
+    tokio::spawn(async move {
+        let ask = async {
+            if hold.wait_for(|held| *held).await.is_ok() {
+                client::hold_embedding(&holding, &at).await;
+            }
+        };
+        tokio::select! {
+            () = ask => {}
+            () = until => {}
+        }
+    });
+    tokio::spawn(async move {
+        let follow = client::watch_embedding(&security, &url, |s| {
+            let queue = queue.clone();
+            published.send_if_modified(|newest| {
+                let newer = s.version > *newest;
+                *newest = (*newest).max(s.version);
+                newer
+            });
+            async move { queue.send(Input::Embedding(s)).await.is_ok() }
+        });
+        tokio::select! {
+            followed = follow => if let Err(e) = followed {
+                tracing::error!("learner: {e}; no new embedding will arrive");
+            },
+            () = stop => {}
+        }
+    });
+}
+
+/// The round clock: a tick into the queue every [`TICK`]; through a weak sender, so that the
+/// queue still closes when the service is gone.
+fn tick(queue: &mpsc::Sender<Input>) {
+    let ticks = queue.downgrade();
+    tokio::spawn(async move {
+        let mut every = tokio::time::interval(TICK);
+        every.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Skip);
+        loop {
+            every.tick().await;
+            let Some(queue) = ticks.upgrade() else { break };
+            // a full queue has work enough: the tick is not needed then
+            let _ = queue.try_send(Input::Tick);
+        }
+    });
 }
 
 /// The learner's command line (docs/src/operations/services.md).

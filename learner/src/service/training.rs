@@ -160,55 +160,13 @@ impl LearnerLoop {
                         self.resize_batch(&mut roster, Instant::now())?;
                     }
                 }
-                Input::Tick => {
-                    let deadline = roster.deadline();
-                    if evaluation.open().is_none()
-                        && let Some(missing) = roster.overdue(Instant::now())
-                    {
-                        tracing::info!(
-                            "a round waited {:.1} s: updating on its {} env steps without actors \
-                             {missing:?}, left out of the batch until they send again",
-                            deadline.as_secs_f64(),
-                            self.run.learner().pending_steps()
-                        );
-                        self.publish_shares(&roster);
-                        self.run
-                            .learner_mut()
-                            .set_batch_steps(roster.batch_steps())?;
-                        if let Some(report) = self.run.learner_mut().close_round()? {
-                            self.record_update(report)?;
-                        }
-                        self.telemetry.observe_actors(roster.counts());
-                    }
+                Input::Tick if evaluation.open().is_none() => {
+                    self.close_overdue_round(&mut roster)?
                 }
+                Input::Tick => {}
                 Input::Fragment(f) if evaluation.open().is_none() => {
-                    let (actor_id, len) = (f.actor_id, f.len());
-                    let now = Instant::now();
-                    self.telemetry.observe_actor_steps(actor_id, len as u64);
-                    match self.run.learner_mut().ingest(*f) {
-                        Ok(Ingested::Updated(report)) => {
-                            round_completed(&mut roster, now);
-                            self.publish_shares(&roster);
-                            self.record_update(*report)?;
-                        }
-                        Ok(Ingested::Buffered) => {
-                            let first = self.run.learner().pending_steps() == len;
-                            roster.buffered(actor_id, first, now);
-                        }
-                        // a dropped fragment still shows its actor alive
-                        Ok(_) => roster.delivered(actor_id),
-                        Err(e) => tracing::warn!("fragment refused: {e}"),
-                    }
-                    // an absent actor that sent again is back in the batch
-                    self.resize_batch(&mut roster, now)?;
-                    self.telemetry.observe_fragment(&LearnerSample {
-                        env_steps: self.run.learner().env_steps(),
-                        updates: self.run.learner().updates(),
-                        policy_version: self.run.learner().version(),
-                        embedding_version: self.run.learner().embedding_version(),
-                        dropped: self.run.learner().dropped(),
-                        queue_depth: queue.len(),
-                    });
+                    let actor_id = f.actor_id;
+                    self.take_fragment(*f, &mut roster, queue.len())?;
                     if self.run.learner().env_steps() >= self.config.env_steps {
                         let request = evaluation.ask(
                             actor_id,
@@ -234,6 +192,68 @@ impl LearnerLoop {
             }
         }
         anyhow::bail!("the learner stopped before the run ended")
+    }
+
+    /// A round past its deadline: updates on what it has, without its silent actors.
+    fn close_overdue_round(&mut self, roster: &mut Roster) -> anyhow::Result<()> {
+        let deadline = roster.deadline();
+        let Some(missing) = roster.overdue(Instant::now()) else {
+            return Ok(());
+        };
+        tracing::info!(
+            "a round waited {:.1} s: updating on its {} env steps without actors \
+             {missing:?}, left out of the batch until they send again",
+            deadline.as_secs_f64(),
+            self.run.learner().pending_steps()
+        );
+        self.publish_shares(roster);
+        self.run
+            .learner_mut()
+            .set_batch_steps(roster.batch_steps())?;
+        if let Some(report) = self.run.learner_mut().close_round()? {
+            self.record_update(report)?;
+        }
+        self.telemetry.observe_actors(roster.counts());
+        Ok(())
+    }
+
+    /// A fragment into the learner (an update recorded where it completes the batch), the
+    /// roster told, the Prometheus families updated.
+    fn take_fragment(
+        &mut self,
+        f: jsae_wire::RolloutFragment,
+        roster: &mut Roster,
+        queue_depth: usize,
+    ) -> anyhow::Result<()> {
+        let (actor_id, len) = (f.actor_id, f.len());
+        let now = Instant::now();
+        self.telemetry.observe_actor_steps(actor_id, len as u64);
+        match self.run.learner_mut().ingest(f) {
+            Ok(Ingested::Updated(report)) => {
+                round_completed(roster, now);
+                self.publish_shares(roster);
+                self.record_update(*report)?;
+            }
+            Ok(Ingested::Buffered) => {
+                let first = self.run.learner().pending_steps() == len;
+                roster.buffered(actor_id, first, now);
+            }
+            // a dropped fragment still shows its actor alive
+            Ok(_) => roster.delivered(actor_id),
+            Err(e) => tracing::warn!("fragment refused: {e}"),
+        }
+        // an absent actor that sent again is back in the batch
+        self.resize_batch(roster, now)?;
+        let learner = self.run.learner();
+        self.telemetry.observe_fragment(&LearnerSample {
+            env_steps: learner.env_steps(),
+            updates: learner.updates(),
+            policy_version: learner.version(),
+            embedding_version: learner.embedding_version(),
+            dropped: learner.dropped(),
+            queue_depth,
+        });
+        Ok(())
     }
 
     fn finish(mut self, eval: &EvalReport) -> anyhow::Result<Summary> {

@@ -13,8 +13,8 @@ use jsae_record::{Recorder, RecordingInfo};
 use jsae_run_dir::{Resume, RunDir, Summary};
 use jsae_wire::EmbeddingSnapshot;
 
-use crate::plot;
 use crate::progress::Progress;
+use jsae_report::plot;
 use jsae_settings::TrainConfig;
 
 use jsae_actor::worker::{ActorWorker, WorkerError};

@@ -5,8 +5,8 @@
 
 use std::ops::Range;
 
-use jsae_experiments::figures::{self, Band, Drawing, Figure, reason, steps_label};
-use jsae_experiments::report::min_max_band;
+use crate::figures::{self, Band, Drawing, Figure, reason, steps_label};
+use crate::report::min_max_band;
 use jsae_run_dir::{MetricsTable, Summary};
 use plotters::coord::Shift;
 use plotters::prelude::*;

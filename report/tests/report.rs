@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 
-use jsae_experiments::report;
+use jsae_report::report;
 
 fn folder(name: &str) -> PathBuf {
     let d = std::env::temp_dir().join(format!("jsae-report-{name}-{}", std::process::id()));
@@ -98,7 +98,7 @@ fn report_of_known_runs() {
     assert!(made.markdown.contains("3/4 (3.0k) | 0/4"));
     assert!(made.markdown.contains("1/4 (4.0k) | 1/4"));
     assert!(std::fs::metadata(dir.join("report.json")).is_ok_and(|m| m.len() > 500));
-    if let Err(reason) = jsae_experiments::figures::font() {
+    if let Err(reason) = jsae_report::figures::font() {
         // A machine without a TrueType font gets the tables and the reason.
         assert!(made.markdown.contains("No figures"), "{reason}");
         let _ = std::fs::remove_dir_all(&dir);

@@ -7,10 +7,10 @@
 use std::ops::Range;
 use std::path::PathBuf;
 
+use crate::figures::{Drawing, reason};
 use jsae_agent::Embedding;
 use jsae_envs::EnvName;
 use jsae_envs::gridworld::{Gridworld, action_motions};
-use jsae_experiments::figures::{Drawing, reason};
 use jsae_run_dir::RunDir;
 use jsae_settings::TrainConfig;
 use jsae_wire::StateBatch;

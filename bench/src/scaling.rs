@@ -27,9 +27,9 @@ use jsae_run_dir::RunDir;
 use jsae_settings::UpdatePath;
 use jsae_settings::{Algo, TrainConfig};
 
-use crate::launch;
-use crate::progress::Progress;
-use crate::train::train_one_process;
+use jsae_train::launch;
+use jsae_train::progress::Progress;
+use jsae_train::train_one_process;
 
 /// Env steps of one actor's rollout under the defaults (16 x 128).
 const ROLLOUT: usize = 2048;
@@ -201,12 +201,7 @@ fn measure_in(
             };
             let c = config(rung, run_steps(actors, quick), root.join(name));
             let mut progress = Progress::new(c.env_steps, true);
-            launch::train_processes(
-                &c,
-                &crate::train::RunOptions::default(),
-                &exe,
-                &mut progress,
-            )?;
+            launch::train_processes(&c, &jsae_train::RunOptions::default(), &exe, &mut progress)?;
             let (rate, lag, dropped) = steady_state(&c.out)?;
             rows.push(ScalingRow {
                 mode: "processes",

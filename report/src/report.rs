@@ -10,8 +10,8 @@ use jsae_run_dir::MetricsTable;
 use serde::Deserialize;
 
 use crate::figures::{self, Band, Figure};
-use crate::grid::{Grid, ReportSpec};
 use crate::stats::{self, Interval, RESAMPLES};
+use jsae_experiments::grid::{Grid, ReportSpec};
 
 /// Points on the x axis of a curve with a band.
 const CURVE_POINTS: usize = 60;

@@ -1,6 +1,6 @@
 //! The plots of a run, drawn by plotters as SVG and PNG twins (`learning_curve.svg` and
 //! `learning_curve.png`, ...; the font, the colours and the double drawing are
-//! `jsae_experiments::figures`'), and `jsae plot`.
+//! `crate::figures`'), and `jsae plot`.
 //!
 //! Layout: `curves` (the learning curve of a run with its final evaluation, and several runs
 //! in one figure as a mean with a band), `embeddings` (for the gridworld, the learned action
@@ -18,9 +18,9 @@ use std::io;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use crate::figures::{self, Drawing};
 use clap::Args;
 use jsae_agent::Embedding;
-use jsae_experiments::figures::{self, Drawing};
 use jsae_run_dir::MetricsTable;
 use jsae_run_dir::RunDir;
 use jsae_settings::TrainConfig;

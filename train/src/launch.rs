@@ -20,9 +20,9 @@ use jsae_run_dir::{MetricsTable, Summary};
 use jsae_settings::TrainConfig;
 
 use crate::log_echo::LogEcho;
-use crate::plot;
+use crate::one_process::{RunOptions, RunOutcome, TrainError, run_id};
 use crate::progress::Progress;
-use crate::train::{RunOptions, RunOutcome, TrainError, run_id};
+use jsae_report::plot;
 
 /// A child process, killed if still running when dropped.
 #[derive(Debug)]
@@ -145,7 +145,7 @@ fn common_args(config: &TrainConfig, config_path: &Path) -> Vec<String> {
 /// Checks the security flags for services that are each other's clients on 127.0.0.1 (a
 /// server with a TLS identity needs clients with a CA, and the other way round); the URL
 /// scheme they give.
-pub(crate) fn check_security(flags: &SecurityFlags) -> Result<&'static str, TrainError> {
+pub fn check_security(flags: &SecurityFlags) -> Result<&'static str, TrainError> {
     let security = flags.load().map_err(TrainError::Service)?;
     if flags.tls_cert.is_some() != flags.tls_ca.is_some() {
         return Err(TrainError::Service(
@@ -221,10 +221,6 @@ pub fn train_processes(
     let stop = stop_on_signal()?;
     let run = RunDir::new(&config.out);
     let dir = config.out.clone();
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| TrainError::Io { path, source }
-    };
     let logs = run.logs();
     std::fs::create_dir_all(&logs).map_err(io(&logs))?;
     let ckpt = run.checkpoints();
@@ -235,155 +231,18 @@ pub fn train_processes(
     }
     let config_path = std::path::absolute(run.config_toml()).map_err(io(&dir))?;
     std::fs::write(&config_path, config.to_toml()).map_err(io(&config_path))?;
-    let common = common_args(config, &config_path);
-    let listen = ["--listen".to_string(), "127.0.0.1:0".to_string()];
     let children = Children {
         exe,
         run: &run,
         security: files.security.to_env(),
         scheme: check_security(&files.security)?,
     };
-
-    let mut embedder = None;
-    let mut embedder_url = None;
-    if config.algo.representation().needs_embedder() {
-        let mut args = vec!["embedder".to_string()];
-        args.extend(listen.iter().cloned());
-        args.extend(common.iter().cloned());
-        args.extend([
-            "--checkpoint-dir".into(),
-            std::path::absolute(ckpt.path())
-                .map_err(io(&dir))?
-                .display()
-                .to_string(),
-        ]);
-        if let Some(path) = &files.pretrain_from {
-            args.extend(["--pretrain-from".into(), path.display().to_string()]);
-        }
-        let (service, url) = Service::start(&children, &args, "embedder", true)?;
-        progress.note(&format!("embedder on {}", url.as_deref().unwrap_or("?")));
-        embedder = Some(service);
-        embedder_url = url;
-    }
-    let mut args = vec!["learner".to_string()];
-    args.extend(listen.iter().cloned());
-    args.extend(common.iter().cloned());
-    args.extend([
-        "--env-steps".into(),
-        config.env_steps.to_string(),
-        "--out".into(),
-        std::path::absolute(&dir)
-            .map_err(io(&dir))?
-            .display()
-            .to_string(),
-    ]);
-    if let Some(url) = &embedder_url {
-        args.extend(["--embedder".into(), url.clone()]);
-    }
-    if files.resume {
-        args.push("--resume".into());
-    }
-    let (mut learner, learner_url) = Service::start(&children, &args, "learner", true)?;
-    let learner_url = learner_url.unwrap_or_default();
-    progress.note(&format!("learner on {learner_url}"));
-    let mut actors = Vec::new();
-    for id in 0..config.actors {
-        let mut args = vec!["actor".to_string(), "--learner".into(), learner_url.clone()];
-        args.extend(common.iter().cloned());
-        args.extend([
-            "--id".into(),
-            id.to_string(),
-            "--envs".into(),
-            config.envs_per_actor.to_string(),
-        ]);
-        if let Some(url) = &embedder_url {
-            args.extend(["--embedder".into(), url.clone()]);
-        }
-        if let Some(path) = files.actor_record(id, config.actors) {
-            args.extend([
-                "--record".into(),
-                path.display().to_string(),
-                "--run-id".into(),
-                run_id(config),
-            ]);
-        }
-        let name = format!("actor-{id}");
-        actors.push(Service::start(&children, &args, &name, false)?.0);
-    }
-
-    let metrics = run.metrics_csv();
-    let mut echoes: Vec<LogEcho> = embedder
-        .iter()
-        .map(|_| "embedder".to_string())
-        .chain(["learner".to_string()])
-        .chain((0..config.actors).map(|id| format!("actor-{id}")))
-        .map(|name| LogEcho::new(&name, run.log(&name)))
-        .collect();
-    let status = loop {
-        for echo in &mut echoes {
-            echo.show_new(progress);
-        }
-        if let Ok(Some(status)) = learner.child.try_wait() {
-            break status;
-        }
-        if stop.load(Ordering::Relaxed) {
-            progress.note("stopping: signal received; stopping the services");
-            for a in &mut actors {
-                a.terminate(Duration::from_secs(10));
-            }
-            learner.terminate(Duration::from_secs(30));
-            if let Some(e) = embedder.as_mut() {
-                e.terminate(Duration::from_secs(30));
-            }
-            return Err(TrainError::Service(format!(
-                "stopped by a signal; the services stopped, their checkpoints are in {}",
-                ckpt.path().display()
-            )));
-        }
-        if let Some(e) = embedder.as_mut()
-            && let Ok(Some(status)) = e.child.try_wait()
-        {
-            return Err(exited(&run, "embedder", status));
-        }
-        // every actor failed: nothing will step again (an actor that dies beside others is
-        // the run's to survive; one that exits 0 was told the run is over)
-        let statuses: Vec<_> = actors
-            .iter_mut()
-            .map(|a| a.child.try_wait().ok().flatten())
-            .collect();
-        if statuses.iter().all(|s| s.is_some_and(|s| !s.success()))
-            && let Some(Some(status)) = statuses.first()
-        {
-            for a in &mut actors {
-                a.terminate(Duration::from_secs(1));
-            }
-            learner.terminate(Duration::from_secs(30));
-            if let Some(e) = embedder.as_mut() {
-                e.terminate(Duration::from_secs(30));
-            }
-            return Err(exited(&run, "actor-0", *status));
-        }
-        match last_metrics(&metrics) {
-            Some((steps, ret, success)) => progress.position(steps, ret, success),
-            None if embedder.is_some() => progress.phase(
-                None,
-                &pretraining_phase(&run.log("embedder")).unwrap_or_else(|| {
-                    "waiting for the embedder: random play, then pre-training".into()
-                }),
-            ),
-            None => {}
-        }
-        std::thread::sleep(Duration::from_millis(500));
-    };
+    let mut services = Services::start(&children, config, files, &config_path, progress)?;
+    let status = services.watch(&run, config.actors, &stop, progress)?;
     if !status.success() {
         return Err(exited(&run, "learner", status));
     }
-    for a in &mut actors {
-        a.terminate(Duration::from_secs(10));
-    }
-    if let Some(e) = embedder.as_mut() {
-        e.terminate(Duration::from_secs(30));
-    }
+    services.stop(Duration::from_secs(10));
     let text = std::fs::read_to_string(run.summary_json()).map_err(io(&dir))?;
     let summary: Summary = serde_json::from_str(&text)
         .map_err(|e| TrainError::Service(format!("summary.json: {e}")))?;
@@ -394,6 +253,165 @@ pub fn train_processes(
         dir: dir.clone(),
         plots,
     })
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + use<> {
+    let path = path.to_path_buf();
+    move |source| TrainError::Io { path, source }
+}
+
+/// An absolute path as an argument.
+fn absolute(path: &Path) -> Result<String, TrainError> {
+    Ok(std::path::absolute(path)
+        .map_err(io(path))?
+        .display()
+        .to_string())
+}
+
+/// The service processes of one run.
+struct Services {
+    embedder: Option<Service>,
+    learner: Service,
+    actors: Vec<Service>,
+}
+
+impl Services {
+    /// Starts the embedder (where the algorithm needs one), then the learner, then the
+    /// actors, each told the addresses of those before it.
+    fn start(
+        children: &Children<'_>,
+        config: &TrainConfig,
+        files: &RunOptions,
+        config_path: &Path,
+        progress: &mut Progress,
+    ) -> Result<Self, TrainError> {
+        let common = common_args(config, config_path);
+        let listen = ["--listen".to_string(), "127.0.0.1:0".to_string()];
+        let (mut embedder, mut embedder_url) = (None, None);
+        if config.algo.representation().needs_embedder() {
+            let mut args = vec!["embedder".to_string()];
+            args.extend(listen.iter().chain(&common).cloned());
+            let checkpoints = absolute(children.run.checkpoints().path())?;
+            args.extend(["--checkpoint-dir".into(), checkpoints]);
+            if let Some(path) = &files.pretrain_from {
+                args.extend(["--pretrain-from".into(), path.display().to_string()]);
+            }
+            let (service, url) = Service::start(children, &args, "embedder", true)?;
+            progress.note(&format!("embedder on {}", url.as_deref().unwrap_or("?")));
+            (embedder, embedder_url) = (Some(service), url);
+        }
+        let mut args = vec!["learner".to_string()];
+        args.extend(listen.iter().chain(&common).cloned());
+        args.extend(["--env-steps".into(), config.env_steps.to_string()]);
+        args.extend(["--out".into(), absolute(&config.out)?]);
+        if let Some(url) = &embedder_url {
+            args.extend(["--embedder".into(), url.clone()]);
+        }
+        if files.resume {
+            args.push("--resume".into());
+        }
+        let (learner, learner_url) = Service::start(children, &args, "learner", true)?;
+        let learner_url = learner_url.unwrap_or_default();
+        progress.note(&format!("learner on {learner_url}"));
+        let mut actors = Vec::new();
+        for id in 0..config.actors {
+            let mut args = vec!["actor".to_string(), "--learner".into(), learner_url.clone()];
+            args.extend(common.iter().cloned());
+            args.extend(["--id".into(), id.to_string()]);
+            args.extend(["--envs".into(), config.envs_per_actor.to_string()]);
+            if let Some(url) = &embedder_url {
+                args.extend(["--embedder".into(), url.clone()]);
+            }
+            if let Some(path) = files.actor_record(id, config.actors) {
+                args.extend(["--record".into(), path.display().to_string()]);
+                args.extend(["--run-id".into(), run_id(config)]);
+            }
+            let name = format!("actor-{id}");
+            actors.push(Service::start(children, &args, &name, false)?.0);
+        }
+        Ok(Self {
+            embedder,
+            learner,
+            actors,
+        })
+    }
+
+    /// Stops the actors (each given `actors` to stop), the learner and the embedder.
+    fn stop(&mut self, actors: Duration) {
+        for a in &mut self.actors {
+            a.terminate(actors);
+        }
+        if self.learner.child.try_wait().ok().flatten().is_none() {
+            self.learner.terminate(Duration::from_secs(30));
+        }
+        if let Some(e) = self.embedder.as_mut() {
+            e.terminate(Duration::from_secs(30));
+        }
+    }
+
+    /// Shows the services' warnings and the run's progress until the learner exits (its
+    /// status); stops them all on a signal, when the embedder exits, or when every actor
+    /// failed.
+    fn watch(
+        &mut self,
+        run: &RunDir,
+        actors: usize,
+        stop: &AtomicBool,
+        progress: &mut Progress,
+    ) -> Result<std::process::ExitStatus, TrainError> {
+        let metrics = run.metrics_csv();
+        let mut echoes: Vec<LogEcho> = self
+            .embedder
+            .iter()
+            .map(|_| "embedder".to_string())
+            .chain(["learner".to_string()])
+            .chain((0..actors).map(|id| format!("actor-{id}")))
+            .map(|name| LogEcho::new(&name, run.log(&name)))
+            .collect();
+        loop {
+            for echo in &mut echoes {
+                echo.show_new(progress);
+            }
+            if let Ok(Some(status)) = self.learner.child.try_wait() {
+                return Ok(status);
+            }
+            if stop.load(Ordering::Relaxed) {
+                progress.note("stopping: signal received; stopping the services");
+                self.stop(Duration::from_secs(10));
+                return Err(TrainError::Service(format!(
+                    "stopped by a signal; the services stopped, their checkpoints are in {}",
+                    run.checkpoints().path().display()
+                )));
+            }
+            if let Some(e) = self.embedder.as_mut()
+                && let Ok(Some(status)) = e.child.try_wait()
+            {
+                return Err(exited(run, "embedder", status));
+            }
+            // every actor failed: nothing will step again (an actor that dies beside others
+            // is the run's to survive; one that exits 0 was told the run is over)
+            let statuses: Vec<_> = (self.actors.iter_mut())
+                .map(|a| a.child.try_wait().ok().flatten())
+                .collect();
+            if statuses.iter().all(|s| s.is_some_and(|s| !s.success()))
+                && let Some(Some(status)) = statuses.first()
+            {
+                self.stop(Duration::from_secs(1));
+                return Err(exited(run, "actor-0", *status));
+            }
+            match last_metrics(&metrics) {
+                Some((steps, ret, success)) => progress.position(steps, ret, success),
+                None if self.embedder.is_some() => progress.phase(
+                    None,
+                    &pretraining_phase(&run.log("embedder")).unwrap_or_else(|| {
+                        "waiting for the embedder: random play, then pre-training".into()
+                    }),
+                ),
+                None => {}
+            }
+            std::thread::sleep(Duration::from_millis(500));
+        }
+    }
 }
 
 /// This program's path, to start the services from.

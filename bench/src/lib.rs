@@ -231,3 +231,88 @@ pub fn run(quick: bool) -> String {
     out.push_str("(inference = phi, pi_i sample, nearest-neighbour f; act step = that plus env steps and bookkeeping)\n");
     out
 }
+
+/// `jsae bench`'s flags.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BenchArgs {
+    /// Fewer repetitions (a smoke run).
+    #[arg(long)]
+    pub quick: bool,
+    /// Only the transport measurements.
+    #[arg(long)]
+    pub transport: bool,
+    /// Only the PPO update: time per 2,048 samples for each policy head on the old
+    /// (burn) and the new (fused) path, achieved GFLOP/s beside a GEMM peak measured in
+    /// the same run.
+    #[arg(long)]
+    pub learner: bool,
+    /// Only the actor ladder: end-to-end HalfCheetah PPO env-steps/s as separate
+    /// processes with each count of `--actors` (the batch one rollout of every actor),
+    /// beside raw env stepping and the learner's own limit measured in the same run.
+    #[arg(long)]
+    pub scaling: bool,
+    /// The ladder's actor counts, e.g. `1,2,4,8` [default: 1, 2, 4, ... up to the cores].
+    #[arg(long, value_delimiter = ',', requires = "scaling")]
+    pub actors: Vec<usize>,
+    /// Stepping threads of every actor in the ladder [default: 0, the run's rule: the
+    /// cores less one, over the actors].
+    #[arg(long, default_value_t = 0, requires = "scaling")]
+    pub step_threads: usize,
+    /// Only the MuJoCo stepping measurements (HalfCheetah and Ant: raw mujoco-rs, our
+    /// env, the actor with batched inference, Gymnasium).
+    #[arg(long)]
+    pub mujoco: bool,
+    /// Only the Recommender service's latency (p50, p99) and throughput at concurrency
+    /// 64 over loopback gRPC.
+    #[arg(long)]
+    pub recommender: bool,
+    /// Environments per actor in the MuJoCo actor measurement.
+    #[arg(long, default_value_t = 16)]
+    pub envs: usize,
+}
+
+/// Runs `jsae bench`: the measurements its flags ask for, printed as they are made.
+pub fn main(args: BenchArgs) -> std::process::ExitCode {
+    use std::process::ExitCode;
+    let BenchArgs {
+        quick,
+        transport,
+        learner,
+        scaling,
+        actors,
+        step_threads,
+        mujoco,
+        recommender,
+        envs,
+    } = args;
+    if scaling {
+        if actors.contains(&0) {
+            eprintln!("--actors: every count must be at least 1");
+            return ExitCode::from(2);
+        }
+        let ladder = if actors.is_empty() {
+            crate::scaling::default_ladder()
+        } else {
+            actors
+        };
+        print!("{}", crate::scaling::run(&ladder, step_threads, quick));
+        return ExitCode::SUCCESS;
+    }
+    if learner {
+        print!("{}", crate::learner::run(quick));
+        return ExitCode::SUCCESS;
+    }
+    if recommender {
+        print!("{}", crate::recommender::run(quick));
+        return ExitCode::SUCCESS;
+    }
+    if mujoco {
+        print!("{}", crate::mujoco::run(envs.max(1), quick));
+        return ExitCode::SUCCESS;
+    }
+    if !transport {
+        print!("{}", crate::run(quick));
+    }
+    print!("{}", crate::transport::run(quick));
+    ExitCode::SUCCESS
+}
