@@ -3,15 +3,9 @@
 //! the pinned mdbook (`scripts/install-mdbook.sh`; `.ci/run` installs it, elsewhere the build
 //! is checked where it is installed).
 
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
-fn root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR"))
-        .parent()
-        .expect("the workspace")
-        .to_path_buf()
-}
+use jsae_tests::repo_root as root;
 
 #[test]
 fn every_path_command_and_link_the_docs_name_exists() {

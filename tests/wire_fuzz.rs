@@ -158,6 +158,63 @@ fn mutate(valid: &[u8], rng: &mut ChaCha8Rng) -> Vec<u8> {
     }
 }
 
+/// `CLIENTS` clients, each seeded, send `MESSAGES` mutated messages in all to random RPCs;
+/// no answer may be an internal error or take more than 10 s. The messages sent, the calls
+/// made and how often each code answered.
+async fn fuzz(
+    rpcs: &std::sync::Arc<Vec<Rpc>>,
+    channels: &[jsae_net::security::Connection],
+) -> (usize, usize, std::collections::BTreeMap<String, usize>) {
+    let mut tasks = tokio::task::JoinSet::new();
+    for t in 0..CLIENTS {
+        let rpcs = rpcs.clone();
+        let channels = channels.to_vec();
+        tasks.spawn(async move {
+            let mut rng = ChaCha8Rng::seed_from_u64(SEED + t as u64);
+            let mut clients: Vec<_> = channels.into_iter().map(RawClient::new).collect();
+            let (mut sent, mut calls) = (0, 0);
+            let mut codes = std::collections::BTreeMap::<String, usize>::new();
+            while sent < MESSAGES / CLIENTS {
+                let rpc = &rpcs[rng.random_range(0..rpcs.len())];
+                let n = match rpc.shape {
+                    Shape::ClientStream => rng.random_range(1..=16),
+                    _ => 1,
+                };
+                let messages = (0..n).map(|_| mutate(&rpc.valid, &mut rng)).collect();
+                let code = call(
+                    &mut clients[rpc.service],
+                    rpc.path,
+                    rpc.shape,
+                    messages,
+                    Duration::from_secs(10),
+                )
+                .await
+                .unwrap_or_else(|_| panic!("{} hung", rpc.path));
+                assert!(
+                    !matches!(code, Code::Internal | Code::Unknown | Code::Unavailable),
+                    "{}: {code:?}",
+                    rpc.path
+                );
+                *codes.entry(format!("{code:?}")).or_default() += 1;
+                sent += n;
+                calls += 1;
+            }
+            (sent, calls, codes)
+        });
+    }
+    let (mut sent, mut calls) = (0, 0);
+    let mut codes = std::collections::BTreeMap::<String, usize>::new();
+    while let Some(done) = tasks.join_next().await {
+        let (s, c, k) = done.expect("a fuzz client");
+        sent += s;
+        calls += c;
+        for (code, n) in k {
+            *codes.entry(code).or_default() += n;
+        }
+    }
+    (sent, calls, codes)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn undecodable_bytes_get_invalid_argument_and_a_fuzz_run_harms_no_service() {
     let mut c = config(EnvName::Gridworld, Algo::Ppo, "wire-fuzz");
@@ -213,53 +270,7 @@ async fn undecodable_bytes_get_invalid_argument_and_a_fuzz_run_harms_no_service(
 
     println!("fuzz seed {SEED}");
     let started = Instant::now();
-    let mut tasks = tokio::task::JoinSet::new();
-    for t in 0..CLIENTS {
-        let rpcs = rpcs.clone();
-        let channels = channels.clone();
-        tasks.spawn(async move {
-            let mut rng = ChaCha8Rng::seed_from_u64(SEED + t as u64);
-            let mut clients: Vec<_> = channels.into_iter().map(RawClient::new).collect();
-            let (mut sent, mut calls) = (0, 0);
-            let mut codes = std::collections::BTreeMap::<String, usize>::new();
-            while sent < MESSAGES / CLIENTS {
-                let rpc = &rpcs[rng.random_range(0..rpcs.len())];
-                let n = match rpc.shape {
-                    Shape::ClientStream => rng.random_range(1..=16),
-                    _ => 1,
-                };
-                let messages = (0..n).map(|_| mutate(&rpc.valid, &mut rng)).collect();
-                let code = call(
-                    &mut clients[rpc.service],
-                    rpc.path,
-                    rpc.shape,
-                    messages,
-                    Duration::from_secs(10),
-                )
-                .await
-                .unwrap_or_else(|_| panic!("{} hung", rpc.path));
-                assert!(
-                    !matches!(code, Code::Internal | Code::Unknown | Code::Unavailable),
-                    "{}: {code:?}",
-                    rpc.path
-                );
-                *codes.entry(format!("{code:?}")).or_default() += 1;
-                sent += n;
-                calls += 1;
-            }
-            (sent, calls, codes)
-        });
-    }
-    let (mut sent, mut calls) = (0, 0);
-    let mut codes = std::collections::BTreeMap::<String, usize>::new();
-    while let Some(done) = tasks.join_next().await {
-        let (s, c, k) = done.expect("a fuzz client");
-        sent += s;
-        calls += c;
-        for (code, n) in k {
-            *codes.entry(code).or_default() += n;
-        }
-    }
+    let (sent, calls, codes) = fuzz(&rpcs, &channels).await;
     let seconds = started.elapsed().as_secs_f64();
     println!("fuzz: {sent} messages in {calls} calls in {seconds:.1} s; answers {codes:?}");
     assert!(sent >= MESSAGES, "{sent} messages");

@@ -298,7 +298,8 @@ pub struct ActorArgs {
     /// `--env/--algo/--seed/--config`.
     #[command(flatten)]
     pub run: RunFlags,
-    /// Environments stepped together [default: the settings file's, else 16].
+    /// Environments stepped together [default: the settings file's, else the environment and
+    /// algorithm's (`envs_per_actor` in `jsae config`)].
     #[arg(long, env = "JSAE_ENVS")]
     pub envs: Option<usize>,
     /// This actor's id; give every actor of a run its own [default: from the process id and

@@ -20,14 +20,15 @@ pub struct TrainArgs {
     /// `--env/--algo/--seed/--config`.
     #[command(flatten)]
     pub run: RunFlags,
-    /// Env steps of the whole run [default: the settings file's, else the environment's:
-    /// 500000; 1000000 for half-cheetah and ant; 300000 for the recommender].
+    /// Env steps of the whole run [default: the settings file's, else the environment and
+    /// algorithm's: `jsae config --env E --algo A` prints them all].
     #[arg(long, env = "JSAE_ENV_STEPS")]
     pub env_steps: Option<u64>,
-    /// Actor workers [default: 1].
+    /// Actor workers [default: the settings file's, else 1].
     #[arg(long, env = "JSAE_ACTORS")]
     pub actors: Option<usize>,
-    /// Environments per actor [default: 16].
+    /// Environments per actor [default: the settings file's, else the environment and
+    /// algorithm's (`envs_per_actor` in `jsae config`)].
     #[arg(long, env = "JSAE_ENVS")]
     pub envs: Option<usize>,
     /// Run directory [default: runs/ENV-ALGO-seedN].
@@ -36,8 +37,8 @@ pub struct TrainArgs {
     /// burn device [default: flex].
     #[arg(long, env = "JSAE_DEVICE", value_parser = jsae_settings::device_parser())]
     pub device: Option<DeviceKind>,
-    /// Deterministic evaluation episodes at the end [default: the settings file's, else 20;
-    /// 200 for the recommender].
+    /// Deterministic evaluation episodes at the end [default: the settings file's, else the
+    /// environment's (`eval_episodes` in `jsae config`)].
     #[arg(long, env = "JSAE_EVAL_EPISODES")]
     pub eval_episodes: Option<usize>,
     /// Run every component in this process, in lockstep (deterministic for a seed) instead

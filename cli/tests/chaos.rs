@@ -158,11 +158,9 @@ fn rows(run: &Path) -> Vec<(u64, u64)> {
         .collect()
 }
 
-#[test]
-fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost() {
-    let dir = std::env::temp_dir().join(format!("jsae-chaos-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).expect("dir");
+/// The embedder, the learner and one actor of a small gridworld JSAE run in `dir/run`, each
+/// a `jsae` process on its own port.
+fn start_services(dir: &Path, run: &Path) -> (Process, Process, Process) {
     std::fs::write(
         dir.join("small.toml"),
         "envs_per_actor = 4\nrollout_len = 32\neval_episodes = 2\npolicy_wait_ms = 500\n\
@@ -170,8 +168,6 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
          update_every = 2048\nupdate_steps = 5\n[ppo]\nepochs = 1\n",
     )
     .expect("settings");
-    let run = dir.join("run");
-    let checkpoints = run.join("checkpoints");
     let p = |s: &Path| s.display().to_string();
     let common = [
         "--env",
@@ -192,73 +188,61 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
         head.extend(tail.iter().cloned());
         head
     };
-    let mut embedder = Process::start(
-        &dir,
+    let embedder_listen = format!("127.0.0.1:{embedder_port}");
+    let embedder = Process::start(
+        dir,
         "embedder",
         with(
-            strings(&[
-                "embedder",
-                "--listen",
-                &format!("127.0.0.1:{embedder_port}"),
-            ]),
-            &["--checkpoint-dir".into(), p(&checkpoints)],
+            strings(&["embedder", "--listen", &embedder_listen]),
+            &["--checkpoint-dir".into(), p(&run.join("checkpoints"))],
         ),
     );
-    let mut learner = Process::start(
-        &dir,
+    let learner_listen = format!("127.0.0.1:{learner_port}");
+    let learner_tail = strings(&[
+        "--embedder",
+        &embedder_url,
+        "--env-steps",
+        &ENV_STEPS.to_string(),
+        "--out",
+        &p(run),
+    ]);
+    let learner = Process::start(
+        dir,
         "learner",
         with(
-            strings(&["learner", "--listen", &format!("127.0.0.1:{learner_port}")]),
-            &strings(&[
-                "--embedder",
-                &embedder_url,
-                "--env-steps",
-                &ENV_STEPS.to_string(),
-                "--out",
-                &p(&run),
-            ]),
+            strings(&["learner", "--listen", &learner_listen]),
+            &learner_tail,
         ),
     );
-    let mut actor = Process::start(
-        &dir,
+    let actor_head = strings(&[
         "actor",
-        with(
-            strings(&[
-                "actor",
-                "--learner",
-                &learner_url,
-                "--embedder",
-                &embedder_url,
-            ]),
-            &strings(&["--id", "0", "--envs", "4"]),
-        ),
+        "--learner",
+        &learner_url,
+        "--embedder",
+        &embedder_url,
+    ]);
+    let actor = Process::start(
+        dir,
+        "actor",
+        with(actor_head, &strings(&["--id", "0", "--envs", "4"])),
     );
+    (embedder, learner, actor)
+}
 
-    let deadline = Instant::now() + Duration::from_secs(300);
-    let embedding_saved = || {
-        std::fs::read_dir(&checkpoints).is_ok_and(|entries| {
-            entries
-                .flatten()
-                .any(|e| e.file_name().to_string_lossy().starts_with("embedding-"))
-        })
-    };
-    // the embedder killed while it pre-trains (the actor's random play in its buffer, no
-    // embedding yet): the restarted one starts empty, and the actor plays for it again
-    while !embedder.log_since(0).contains("pre-training the embedding") {
-        assert!(Instant::now() < deadline, "no pre-training in time");
-        std::thread::sleep(Duration::from_millis(20));
-    }
-    embedder.freeze();
-    assert!(!embedding_saved(), "pre-training ended before the kill");
-    embedder.kill_and_restart();
+/// Whether the embedder has checkpointed an embedding.
+fn embedding_saved(checkpoints: &Path) -> bool {
+    std::fs::read_dir(checkpoints).is_ok_and(|entries| {
+        entries
+            .flatten()
+            .any(|e| e.file_name().to_string_lossy().starts_with("embedding-"))
+    })
+}
 
-    // kills at random moments once the run is under way (the first embedding published: a
-    // restarted embedder resumes from its checkpoint)
+/// Kills the learner and the embedder `KILLS` times each, in a seeded random order at random
+/// moments, until the run ends; returns how many learner restarts were seen to take up
+/// exactly the state it saved last.
+fn kill_at_random(learner: &mut Process, embedder: &mut Process, checkpoints: &Path) -> usize {
     let mut rng = ChaCha8Rng::seed_from_u64(SEED);
-    while !embedding_saved() {
-        assert!(Instant::now() < deadline, "no embedding in time");
-        std::thread::sleep(Duration::from_millis(100));
-    }
     let mut plan: Vec<bool> = (0..2 * KILLS).map(|i| i % 2 == 0).collect();
     for i in (1..plan.len()).rev() {
         plan.swap(i, rng.random_range(0..=i));
@@ -269,30 +253,96 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
         if learner.exited().is_some() {
             break; // the run ended before the plan did
         }
-        if kill_learner {
-            // the state it saved last, read while it cannot write a newer one; the restarted
-            // learner must take up exactly that state
-            learner.freeze();
-            let saved = saved_state(&checkpoints);
-            let from = learner.log_len();
-            learner.kill_and_restart();
-            if let Some(saved) = saved {
-                let wait = Instant::now() + Duration::from_secs(30);
-                while !learner.log_since(from).contains("resuming from") {
-                    assert!(Instant::now() < wait, "the learner did not resume");
-                    std::thread::sleep(Duration::from_millis(20));
-                }
-                let log = learner.log_since(from);
-                assert!(
-                    log.contains(&saved),
-                    "saved {saved}; the restart said:\n{log}"
-                );
-                compared += 1;
-            }
-        } else {
+        if !kill_learner {
             embedder.kill_and_restart();
+            continue;
+        }
+        // the state it saved last, read while it cannot write a newer one; the restarted
+        // learner must take up exactly that state
+        learner.freeze();
+        let saved = saved_state(checkpoints);
+        let from = learner.log_len();
+        learner.kill_and_restart();
+        if let Some(saved) = saved {
+            let wait = Instant::now() + Duration::from_secs(30);
+            while !learner.log_since(from).contains("resuming from") {
+                assert!(Instant::now() < wait, "the learner did not resume");
+                std::thread::sleep(Duration::from_millis(20));
+            }
+            let log = learner.log_since(from);
+            assert!(
+                log.contains(&saved),
+                "saved {saved}; the restart said:\n{log}"
+            );
+            compared += 1;
         }
     }
+    compared
+}
+
+/// What the finished run left: summary.json past the budget, metrics rows without repeats or
+/// steps back, versions that follow them.
+fn check_finished_run(run: &Path) {
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(run.join("summary.json")).expect("summary.json"),
+    )
+    .expect("JSON");
+    assert!(
+        summary["env_steps"].as_u64().unwrap_or(0) >= ENV_STEPS,
+        "{summary}"
+    );
+    let rows = rows(run);
+    assert!(!rows.is_empty());
+    for w in rows.windows(2) {
+        assert!(
+            w[0].0 < w[1].0,
+            "update {} then {}: repeated or back",
+            w[0].0,
+            w[1].0
+        );
+        assert!(w[0].1 <= w[1].1, "env steps went back: {w:?}");
+    }
+    let last_update = rows.last().map_or(0, |r| r.0);
+    assert!(
+        summary["policy_version"].as_u64().unwrap_or(0) >= last_update,
+        "{summary}"
+    );
+    assert!(
+        summary["embedding_version"].as_u64().unwrap_or(0) >= 1,
+        "{summary}"
+    );
+}
+
+#[test]
+fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost() {
+    let dir = std::env::temp_dir().join(format!("jsae-chaos-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("dir");
+    let run = dir.join("run");
+    let checkpoints = run.join("checkpoints");
+    let (mut embedder, mut learner, mut actor) = start_services(&dir, &run);
+
+    let deadline = Instant::now() + Duration::from_secs(300);
+    // the embedder killed while it pre-trains (the actor's random play in its buffer, no
+    // embedding yet): the restarted one starts empty, and the actor plays for it again
+    while !embedder.log_since(0).contains("pre-training the embedding") {
+        assert!(Instant::now() < deadline, "no pre-training in time");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    embedder.freeze();
+    assert!(
+        !embedding_saved(&checkpoints),
+        "pre-training ended before the kill"
+    );
+    embedder.kill_and_restart();
+
+    // kills at random moments once the run is under way (the first embedding published: a
+    // restarted embedder resumes from its checkpoint)
+    while !embedding_saved(&checkpoints) {
+        assert!(Instant::now() < deadline, "no embedding in time");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let compared = kill_at_random(&mut learner, &mut embedder, &checkpoints);
     let (mut learner_exit, mut actor_exit) = (None, None);
     while learner_exit.is_none() || actor_exit.is_none() {
         assert!(
@@ -319,35 +369,7 @@ fn killed_learners_and_embedders_rejoin_and_the_run_finishes_with_nothing_lost()
         "no learner restart was compared with its saved state"
     );
     assert!(learner.starts + embedder.starts > 2, "nothing was killed");
-
-    let summary: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(run.join("summary.json")).expect("summary.json"),
-    )
-    .expect("JSON");
-    assert!(
-        summary["env_steps"].as_u64().unwrap_or(0) >= ENV_STEPS,
-        "{summary}"
-    );
-    let rows = rows(&run);
-    assert!(!rows.is_empty());
-    for w in rows.windows(2) {
-        assert!(
-            w[0].0 < w[1].0,
-            "update {} then {}: repeated or back",
-            w[0].0,
-            w[1].0
-        );
-        assert!(w[0].1 <= w[1].1, "env steps went back: {w:?}");
-    }
-    let last_update = rows.last().map_or(0, |r| r.0);
-    assert!(
-        summary["policy_version"].as_u64().unwrap_or(0) >= last_update,
-        "{summary}"
-    );
-    assert!(
-        summary["embedding_version"].as_u64().unwrap_or(0) >= 1,
-        "{summary}"
-    );
+    check_finished_run(&run);
     if learner.starts > 1 {
         assert!(logs().contains("resuming"), "{}", logs());
     }

@@ -121,8 +121,13 @@ fn a_short_run_prints_its_summary() {
     // the learner process wrote the metrics for TensorBoard too
     common::assert_tensorboard_holds_the_metrics(&dir);
 
-    // The finished run evaluates again from its checkpoints: the run's own evaluation seed
-    // reproduces summary.json's evaluation.
+    evaluates_again_from_its_checkpoints(&dir);
+}
+
+/// The finished run in `dir` evaluates again from its checkpoints: the run's own evaluation
+/// seed reproduces summary.json's evaluation; the mode decode and other seeds are asked for;
+/// a closed output ends it cleanly; a run that is not there exits 2.
+fn evaluates_again_from_its_checkpoints(dir: &std::path::Path) {
     let summary: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(dir.join("summary.json")).unwrap_or_default(),
     )

@@ -8,10 +8,11 @@
 
 mod common;
 
+use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{python_json, start_recommender};
+use common::{Server, python_json, start_recommender};
 use jsae_wire::pb;
 
 const SETTINGS: &str = r#"
@@ -63,19 +64,7 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
     std::fs::write(&settings, SETTINGS).expect("settings");
     let run = dir.join("run");
     let store = dir.join("store");
-
-    let trained = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["train", "--one-process", "--quiet", "--config"])
-        .arg(&settings)
-        .arg("--out")
-        .arg(&run)
-        .output()
-        .expect("jsae train runs");
-    assert!(
-        trained.status.success(),
-        "{}",
-        String::from_utf8_lossy(&trained.stderr)
-    );
+    train_small_run(&settings, &run);
 
     let mut args: Vec<std::ffi::OsString> = vec!["--run".into(), run.clone().into()];
     args.extend(["--store-dir".into(), store.clone().into()]);
@@ -92,9 +81,65 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
     assert!(health("").status.success());
     assert_eq!(health("jsae.v1.Nothing").status.code(), Some(1));
 
+    python_client_checks(&addr, &store);
+    command_line_client_checks(&dir, &addr, &store);
+    // the refresh (every second here) puts the new items into free catalogue slots
+    let url = format!("http://{addr}");
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        let r = recommend(&url, &["brand-new-item", "cli-new-item"], 3).expect("Recommend answers");
+        if r.unknown_items == 0 {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the submitted item never joined the model"
+        );
+        std::thread::sleep(Duration::from_millis(200));
+    }
+
+    // a request over MAX_REQUEST_BYTES (4 MiB) is RESOURCE_EXHAUSTED, as the service's own
+    // limits are (tonic alone says OUT_OF_RANGE)
+    let long: Vec<String> = (0..50_000).map(|i| format!("{i:0>100}")).collect();
+    let history: Vec<&str> = long.iter().map(String::as_str).collect();
+    let refused = recommend(&url, &history, 3).expect_err("a 5 MB request");
+    assert_eq!(
+        refused.code(),
+        tonic::Code::ResourceExhausted,
+        "{refused:?}"
+    );
+
+    stop_with_sigterm(server);
+    assert_eq!(
+        health("").status.code(),
+        Some(1),
+        "nothing answers any more"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `jsae train --one-process` of the small settings into `run`.
+fn train_small_run(settings: &Path, run: &Path) {
+    let trained = Command::new(env!("CARGO_BIN_EXE_jsae"))
+        .args(["train", "--one-process", "--quiet", "--config"])
+        .arg(settings)
+        .arg("--out")
+        .arg(run)
+        .output()
+        .expect("jsae train runs");
+    assert!(
+        trained.status.success(),
+        "{}",
+        String::from_utf8_lossy(&trained.stderr)
+    );
+}
+
+/// The Python client (`scripts/python/recommender_client.py`): recommendations, the errors of
+/// the sessions it submits, and exactly its two good sessions stored.
+fn python_client_checks(addr: &str, store: &Path) {
     let seen = python_json(
         "recommender_client.py",
-        &[addr.as_str(), "item-0", "item-1", "item-2"],
+        &[addr, "item-0", "item-1", "item-2"],
     );
     assert!(seen["recommend"]["policy_version"].as_u64() > Some(0));
     assert!(seen["recommend"]["embedding_version"].as_u64() > Some(0));
@@ -134,11 +179,13 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         })
         .collect();
     assert_eq!(ids, ["good-1", "good-2"]);
+}
 
-    // the command-line clients: `jsae recommend`, and `jsae submit-sessions` with one good
-    // session holding a new item and one the service refuses
+/// `jsae recommend`, and `jsae submit-sessions` with one good session holding a new item and
+/// one the service refuses, then a file that is not a session file.
+fn command_line_client_checks(dir: &Path, addr: &str, store: &Path) {
     let asked = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["recommend", "--addr", &addr, "--k", "2", "item-0", "item-1"])
+        .args(["recommend", "--addr", addr, "--k", "2", "item-0", "item-1"])
         .output()
         .expect("jsae recommend runs");
     assert!(
@@ -164,7 +211,7 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
     )
     .expect("session file");
     let submitted = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["submit-sessions", "--addr", &addr])
+        .args(["submit-sessions", "--addr", addr])
         .arg(&lines)
         .output()
         .expect("jsae submit-sessions runs");
@@ -189,7 +236,7 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
     )
     .expect("broken file");
     let refused = Command::new(env!("CARGO_BIN_EXE_jsae"))
-        .args(["submit-sessions", "--addr", &addr])
+        .args(["submit-sessions", "--addr", addr])
         .arg(&broken)
         .output()
         .expect("jsae submit-sessions runs");
@@ -203,34 +250,10 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
             .last()
             .is_some_and(|l| l.contains("cli-new-item"))
     );
+}
 
-    // the refresh (every second here) puts the new items into free catalogue slots
-    let url = format!("http://{addr}");
-    let deadline = Instant::now() + Duration::from_secs(20);
-    loop {
-        let r = recommend(&url, &["brand-new-item", "cli-new-item"], 3).expect("Recommend answers");
-        if r.unknown_items == 0 {
-            break;
-        }
-        assert!(
-            Instant::now() < deadline,
-            "the submitted item never joined the model"
-        );
-        std::thread::sleep(Duration::from_millis(200));
-    }
-
-    // a request over MAX_REQUEST_BYTES (4 MiB) is RESOURCE_EXHAUSTED, as the service's own
-    // limits are (tonic alone says OUT_OF_RANGE)
-    let long: Vec<String> = (0..50_000).map(|i| format!("{i:0>100}")).collect();
-    let history: Vec<&str> = long.iter().map(String::as_str).collect();
-    let refused = recommend(&url, &history, 3).expect_err("a 5 MB request");
-    assert_eq!(
-        refused.code(),
-        tonic::Code::ResourceExhausted,
-        "{refused:?}"
-    );
-
-    // SIGTERM: exit 0
+/// SIGTERM to the Recommender: it exits 0.
+fn stop_with_sigterm(server: Server) {
     let pid = server.0.id().to_string();
     let killed = Command::new("kill")
         .args(["-TERM", &pid])
@@ -247,12 +270,6 @@ fn a_python_client_submits_sessions_and_gets_recommendations() {
         std::thread::sleep(Duration::from_millis(50));
     };
     assert!(status.success(), "{status:?}");
-    assert_eq!(
-        health("").status.code(),
-        Some(1),
-        "nothing answers any more"
-    );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `--policy most-likely|popular` need no run: each answers the Python client with its own

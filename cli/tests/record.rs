@@ -124,56 +124,85 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
         summary["env_steps"].as_u64().unwrap_or(0)
     );
     for (py, t) in rows.iter().zip(&ours.transitions) {
-        let cats: Vec<u64> = py["state_categories"]
-            .as_array()
-            .expect("state")
-            .iter()
-            .map(int)
-            .collect();
-        let next: Vec<u64> = py["next_state_categories"]
-            .as_array()
-            .expect("next")
-            .iter()
-            .map(int)
-            .collect();
-        assert_eq!(
-            cats,
-            t.state_categories
-                .iter()
-                .map(|&c| u64::from(c))
-                .collect::<Vec<_>>()
-        );
-        assert_eq!(
-            next,
-            t.next_state_categories
-                .iter()
-                .map(|&c| u64::from(c))
-                .collect::<Vec<_>>()
-        );
-        assert_eq!(
-            int(&py["discrete_action"]),
-            u64::from(t.discrete_action.unwrap_or(u32::MAX))
-        );
-        assert_eq!(py["reward"].as_f64().map(|r| r as f32), Some(t.reward));
-        assert_eq!(
-            (int(&py["env_index"]), int(&py["episode"]), int(&py["step"])),
-            (u64::from(t.env_index), t.episode, u64::from(t.step))
-        );
-        assert_eq!(
-            (py["terminated"].as_bool(), py["truncated"].as_bool()),
-            (Some(t.terminated), Some(t.truncated))
-        );
-        assert_eq!(
-            (int(&py["policy_version"]), int(&py["embedding_version"])),
-            (t.policy_version, t.embedding_version)
-        );
-        assert_eq!(py["run_id"], "run-5-2");
+        same_transition(py, t);
     }
+    episodes_chain(&rows);
+    let info: Value = serde_json::from_str(&ok(&jsae(&["record-info", file_arg]))).expect("json");
+    assert_eq!(info["transitions"].as_u64(), Some(rows.len() as u64));
+    let random = info["random_play"].as_u64().unwrap_or(0);
+    assert!(random >= 4096 && random < rows.len() as u64, "{info}");
+    assert_eq!(info["environments"].as_u64(), Some(16));
+    let bad = jsae(&["record-info", run.as_str()]);
+    assert_eq!(bad.status.code(), Some(2));
 
-    // Episodes chain: within an environment, each step starts where the last one ended,
-    // unless the last one ended its episode; then the next is step 0 of the next episode.
+    // Another seed pre-trained on seed 5's random play, against its own random play.
+    let fresh = first_embedding_loss(&train(&dir, 6, &[]));
+    let recorded = first_embedding_loss(&train(&dir, 6, &["--pretrain-from", file_arg]));
+    let ratio = recorded / fresh;
+    eprintln!("model loss after pre-training: fresh {fresh:.4}, from the recording {recorded:.4}");
+    assert!(
+        (0.9..=1.1).contains(&ratio),
+        "fresh {fresh}, recorded {recorded}"
+    );
+
+    other_environments_recording_is_refused(&dir, file_arg);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A row of the Python reader's against the same transition read by this crate's reader.
+fn same_transition(py: &Value, t: &jsae_record::pb::Transition) {
+    let cats: Vec<u64> = py["state_categories"]
+        .as_array()
+        .expect("state")
+        .iter()
+        .map(int)
+        .collect();
+    let next: Vec<u64> = py["next_state_categories"]
+        .as_array()
+        .expect("next")
+        .iter()
+        .map(int)
+        .collect();
+    assert_eq!(
+        cats,
+        t.state_categories
+            .iter()
+            .map(|&c| u64::from(c))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(
+        next,
+        t.next_state_categories
+            .iter()
+            .map(|&c| u64::from(c))
+            .collect::<Vec<_>>()
+    );
+    assert_eq!(
+        int(&py["discrete_action"]),
+        u64::from(t.discrete_action.unwrap_or(u32::MAX))
+    );
+    assert_eq!(py["reward"].as_f64().map(|r| r as f32), Some(t.reward));
+    assert_eq!(
+        (int(&py["env_index"]), int(&py["episode"]), int(&py["step"])),
+        (u64::from(t.env_index), t.episode, u64::from(t.step))
+    );
+    assert_eq!(
+        (py["terminated"].as_bool(), py["truncated"].as_bool()),
+        (Some(t.terminated), Some(t.truncated))
+    );
+    assert_eq!(
+        (int(&py["policy_version"]), int(&py["embedding_version"])),
+        (t.policy_version, t.embedding_version)
+    );
+    assert_eq!(py["run_id"], "run-5-2");
+}
+
+/// Episodes chain: within an environment, each step starts where the last one ended, unless
+/// the last one ended its episode; then the next is step 0 of the next episode. Some episode
+/// was cut, and random play came first, then the policy's.
+fn episodes_chain(rows: &[Value]) {
     let mut last: std::collections::HashMap<u64, &Value> = std::collections::HashMap::new();
-    for row in &rows {
+    for row in rows {
         let env = int(&row["env_index"]);
         if let Some(prev) = last.get(&env) {
             let ended = prev["terminated"] == true || prev["truncated"] == true;
@@ -196,28 +225,12 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
     // random play first, then the policy's
     assert_eq!(int(&rows[0]["policy_version"]), 0);
     assert!(int(&rows[rows.len() - 1]["policy_version"]) > 0);
+}
 
-    let info: Value = serde_json::from_str(&ok(&jsae(&["record-info", file_arg]))).expect("json");
-    assert_eq!(info["transitions"].as_u64(), Some(rows.len() as u64));
-    let random = info["random_play"].as_u64().unwrap_or(0);
-    assert!(random >= 4096 && random < rows.len() as u64, "{info}");
-    assert_eq!(info["environments"].as_u64(), Some(16));
-    let bad = jsae(&["record-info", run.as_str()]);
-    assert_eq!(bad.status.code(), Some(2));
-
-    // Another seed pre-trained on seed 5's random play, against its own random play.
-    let fresh = first_embedding_loss(&train(&dir, 6, &[]));
-    let recorded = first_embedding_loss(&train(&dir, 6, &["--pretrain-from", file_arg]));
-    let ratio = recorded / fresh;
-    eprintln!("model loss after pre-training: fresh {fresh:.4}, from the recording {recorded:.4}");
-    assert!(
-        (0.9..=1.1).contains(&ratio),
-        "fresh {fresh}, recorded {recorded}"
-    );
-
-    // A recording of another environment is refused before training, in one process and as
-    // separate processes: there the embedder stops with the cause and `jsae train` says it (it
-    // used to wait for ever while the actor played at random).
+/// A recording of another environment is refused before training, in one process and as
+/// separate processes: there the embedder stops with the cause and `jsae train` says it (it
+/// used to wait for ever while the actor played at random); PPO takes no recording.
+fn other_environments_recording_is_refused(dir: &Path, file_arg: &str) {
     let wrong = |out: &str, one_process: bool| {
         let out = dir.join(out);
         let mut args = vec![
@@ -252,5 +265,4 @@ fn a_recording_reads_back_in_python_and_pretrains_another_run() {
     );
     let ppo = jsae(&["train", "--algo", "ppo", "--pretrain-from", file_arg]);
     assert_eq!(ppo.status.code(), Some(2));
-    let _ = std::fs::remove_dir_all(&dir);
 }

@@ -109,21 +109,17 @@ async fn push(url: &str, fragment: pb::RolloutFragment, messages: usize) -> Resu
         .map_err(|s| format!("{:?}: {}", s.code(), s.message()))
 }
 
-#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() -> std::process::ExitCode {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let [learner, embedder, learner_pid, embedder_pid] = args.as_slice() else {
-        eprintln!("usage: memory_attacks LEARNER_URL EMBEDDER_URL LEARNER_PID EMBEDDER_PID");
-        return std::process::ExitCode::from(2);
-    };
-    let pids: [(&str, u32); 2] = [
-        ("learner", learner_pid.parse().unwrap_or(0)),
-        ("embedder", embedder_pid.parse().unwrap_or(0)),
-    ];
-    // health of both services every 200 ms, counting the checks unanswered within 2 s
+/// Checks the health of both services every 200 ms; the checks unanswered within 2 s and
+/// all the checks, counted as they go.
+fn watch_health(
+    urls: [String; 2],
+) -> (
+    std::sync::Arc<std::sync::atomic::AtomicU64>,
+    std::sync::Arc<std::sync::atomic::AtomicU64>,
+) {
     let missed = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
     let checks = std::sync::Arc::new(std::sync::atomic::AtomicU64::new(0));
-    for url in [learner.clone(), embedder.clone()] {
+    for url in urls {
         let (missed, checks) = (missed.clone(), checks.clone());
         tokio::spawn(async move {
             loop {
@@ -143,19 +139,12 @@ async fn main() -> std::process::ExitCode {
             }
         });
     }
-    let report = |attack: &str, outcome: String| {
-        let memory: Vec<String> = pids
-            .iter()
-            .map(|(name, pid)| {
-                let (now, peak) = rss_mb(*pid);
-                format!("{name} RSS {now:.0} MB (peak {peak:.0})")
-            })
-            .collect();
-        println!("{attack:<44} {outcome:<60} {}", memory.join(", "));
-    };
-    let started = Instant::now();
-    report("before", String::new());
+    (missed, checks)
+}
 
+/// Idle streams held open: WatchEmbedding, WatchPolicy, then Health.Watch on both services;
+/// `report` says how many each service took.
+async fn idle_streams(learner: &str, embedder: &str, report: &impl Fn(&str, String)) {
     let (idle_embedding, accepted, refused) = hold_streams(embedder, 250, 8, |c| async move {
         pb::embedder_client::EmbedderClient::new(c)
             .watch_embedding(pb::WatchRequest::default())
@@ -194,6 +183,34 @@ async fn main() -> std::process::ExitCode {
         health_watches.push(held);
     }
     drop(health_watches);
+}
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() -> std::process::ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let [learner, embedder, learner_pid, embedder_pid] = args.as_slice() else {
+        eprintln!("usage: memory_attacks LEARNER_URL EMBEDDER_URL LEARNER_PID EMBEDDER_PID");
+        return std::process::ExitCode::from(2);
+    };
+    let pids: [(&str, u32); 2] = [
+        ("learner", learner_pid.parse().unwrap_or(0)),
+        ("embedder", embedder_pid.parse().unwrap_or(0)),
+    ];
+    let (missed, checks) = watch_health([learner.clone(), embedder.clone()]);
+    let report = |attack: &str, outcome: String| {
+        let memory: Vec<String> = pids
+            .iter()
+            .map(|(name, pid)| {
+                let (now, peak) = rss_mb(*pid);
+                format!("{name} RSS {now:.0} MB (peak {peak:.0})")
+            })
+            .collect();
+        println!("{attack:<44} {outcome:<60} {}", memory.join(", "));
+    };
+    let started = Instant::now();
+    report("before", String::new());
+
+    idle_streams(learner, embedder, &report).await;
     let big = push(learner, empty_fragment(1_150_000), 40).await;
     report(
         "40 fragments, 0 steps, 1.15M episodes",

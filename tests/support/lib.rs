@@ -11,6 +11,27 @@ use jsae_run_dir::MetricsTable;
 use jsae_run_dir::RunDir;
 use jsae_settings::{Algo, EnvName, TrainConfig};
 
+/// The workspace root.
+pub fn repo_root() -> PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("the tests crate lives in the workspace")
+        .to_path_buf()
+}
+
+/// The test venv's python (scripts/setup-python.sh creates it on first use).
+pub fn venv_python() -> PathBuf {
+    let out = std::process::Command::new(repo_root().join("scripts/setup-python.sh"))
+        .output()
+        .expect("scripts/setup-python.sh runs");
+    assert!(
+        out.status.success(),
+        "scripts/setup-python.sh failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    PathBuf::from(String::from_utf8_lossy(&out.stdout).trim())
+}
+
 /// A fresh, empty directory under the system temp dir for one test.
 pub fn temp_dir(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("jsae-test-{name}-{}", std::process::id()));

@@ -60,43 +60,16 @@ fn check_with(
         host.params.write_into(&mut policy);
     }
     let b = 48;
-    let x: Vec<f32> = (0..b * input)
-        .map(|_| rng.random_range(-2.0..2.0))
-        .collect();
-    let actions = match head {
-        PolicyHead::Gaussian { dim } => ActionBatch::Continuous {
-            dim,
-            data: (0..b * dim).map(|_| rng.random_range(-1.2..1.2)).collect(),
-        },
-        PolicyHead::Categorical { n } => {
-            ActionBatch::Discrete((0..b).map(|_| rng.random_range(0..n as u32)).collect())
-        }
-    };
-    // behaviour log-probs near the current ones, so some ratios are clipped and some not
-    let current = jsae_nn::to_vec(
-        policy
-            .evaluate(jsae_nn::tensor2(x.clone(), b, input, &device), &actions)
-            .logp,
-    );
-    let old_logp: Vec<f32> = current
-        .iter()
-        .map(|l| l + rng.random_range(-0.4..0.4))
-        .collect();
-    let adv: Vec<f32> = (0..b).map(|_| rng.random_range(-1.5..1.5)).collect();
-    let returns: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
-    let old_values: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
-    let next_purchase: Vec<u32> = match head {
-        PolicyHead::Categorical { n } if next_purchase_coef > 0.0 => (0..b)
-            .map(|i| {
-                if i % 5 == 3 {
-                    u32::MAX
-                } else {
-                    rng.random_range(0..n as u32)
-                }
-            })
-            .collect(),
-        _ => Vec::new(),
-    };
+    let m = random_minibatch(&policy, b, next_purchase_coef, &mut rng);
+    let Minibatch {
+        x,
+        actions,
+        old_logp,
+        adv,
+        returns,
+        old_values,
+        next_purchase,
+    } = &m;
     let cfg = LossConfig {
         clip: 0.2,
         clip_value_loss,
@@ -105,40 +78,13 @@ fn check_with(
         next_purchase_coef,
     };
 
-    // burn: the loss exactly as ppo::update builds it
-    let eval = policy.evaluate(jsae_nn::tensor2(x.clone(), b, input, &device), &actions);
-    let log_ratio = eval.logp - jsae_nn::tensor1(old_logp.clone(), &device);
-    let pg = clipped_surrogate_loss(log_ratio, jsae_nn::tensor1(adv.clone(), &device), 0.2);
-    let ret = jsae_nn::tensor1(returns.clone(), &device);
-    let v_loss = if clip_value_loss {
-        let old = jsae_nn::tensor1(old_values.clone(), &device);
-        let unclipped = (eval.value.clone() - ret.clone()).square();
-        let clipped_v = old.clone() + (eval.value - old).clamp(-0.2, 0.2);
-        let clipped = (clipped_v - ret).square();
-        unclipped.max_pair(clipped).mean().mul_scalar(0.5)
-    } else {
-        (eval.value - ret).square().mean().mul_scalar(0.5)
-    };
-    let mut loss: Tensor<1> = pg - eval.entropy.mean().mul_scalar(0.05) + v_loss.mul_scalar(0.5);
-    if !next_purchase.is_empty() {
-        // -log pi(t | x) of the samples with a purchase, over all b samples
-        let with: Vec<usize> = (0..b).filter(|&i| next_purchase[i] != u32::MAX).collect();
-        let xs: Vec<f32> = with
-            .iter()
-            .flat_map(|&i| x[i * input..(i + 1) * input].to_vec())
-            .collect();
-        let targets = ActionBatch::Discrete(with.iter().map(|&i| next_purchase[i]).collect());
-        let logp = policy
-            .evaluate(jsae_nn::tensor2(xs, with.len(), input, &device), &targets)
-            .logp;
-        loss = loss + logp.sum().neg().mul_scalar(next_purchase_coef / b as f32);
-    }
+    let loss = burn_loss(&policy, &m, clip_value_loss, next_purchase_coef);
     let burn_loss = jsae_nn::to_vec(loss.clone())[0];
     let grads = loss.backward();
 
     let host = HostPolicy::from_policy(&policy, None);
-    let x_host = Array2::from_shape_vec((b, input), x).expect("shape");
-    let (continuous, discrete) = match &actions {
+    let x_host = Array2::from_shape_vec((b, input), x.clone()).expect("shape");
+    let (continuous, discrete) = match actions {
         ActionBatch::Continuous { data, .. } => (data.as_slice(), &[][..]),
         ActionBatch::Discrete(a) => (&[][..], a.as_slice()),
     };
@@ -157,7 +103,7 @@ fn check_with(
             adv: &adv[r.clone()],
             returns: &returns[r.clone()],
             old_values: &old_values[r.clone()],
-            next_purchase: of(&next_purchase, b, &r),
+            next_purchase: of(next_purchase, b, &r),
         }
     };
     let mut work = FusedWork::new(&host);
@@ -173,6 +119,124 @@ fn check_with(
         let loss = host.loss_and_grads(&parts, cfg, &mut work);
         compare(&policy, &grads, &work, loss.total, burn_loss, &what);
     }
+}
+
+/// A random minibatch for `policy`, behaviour log-probabilities near its own (so some
+/// ratios are clipped and some not); a next purchase for most samples where
+/// `next_purchase_coef` > 0 (categorical), none for some.
+struct Minibatch {
+    x: Vec<f32>,
+    actions: ActionBatch,
+    old_logp: Vec<f32>,
+    adv: Vec<f32>,
+    returns: Vec<f32>,
+    old_values: Vec<f32>,
+    next_purchase: Vec<u32>,
+}
+
+fn random_minibatch(
+    policy: &Policy,
+    b: usize,
+    next_purchase_coef: f32,
+    rng: &mut ChaCha8Rng,
+) -> Minibatch {
+    let input = policy.input_dim();
+    let x: Vec<f32> = (0..b * input)
+        .map(|_| rng.random_range(-2.0..2.0))
+        .collect();
+    let actions = match policy.head() {
+        PolicyHead::Gaussian { dim } => ActionBatch::Continuous {
+            dim,
+            data: (0..b * dim).map(|_| rng.random_range(-1.2..1.2)).collect(),
+        },
+        PolicyHead::Categorical { n } => {
+            ActionBatch::Discrete((0..b).map(|_| rng.random_range(0..n as u32)).collect())
+        }
+    };
+    let current = jsae_nn::to_vec(
+        policy
+            .evaluate(
+                jsae_nn::tensor2(x.clone(), b, input, policy.device()),
+                &actions,
+            )
+            .logp,
+    );
+    let old_logp: Vec<f32> = current
+        .iter()
+        .map(|l| l + rng.random_range(-0.4..0.4))
+        .collect();
+    let adv: Vec<f32> = (0..b).map(|_| rng.random_range(-1.5..1.5)).collect();
+    let returns: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let old_values: Vec<f32> = (0..b).map(|_| rng.random_range(-1.0..1.0)).collect();
+    let next_purchase: Vec<u32> = match policy.head() {
+        PolicyHead::Categorical { n } if next_purchase_coef > 0.0 => (0..b)
+            .map(|i| {
+                if i % 5 == 3 {
+                    u32::MAX
+                } else {
+                    rng.random_range(0..n as u32)
+                }
+            })
+            .collect(),
+        _ => Vec::new(),
+    };
+    Minibatch {
+        x,
+        actions,
+        old_logp,
+        adv,
+        returns,
+        old_values,
+        next_purchase,
+    }
+}
+
+/// The loss exactly as `ppo::update`'s burn path builds it.
+fn burn_loss(
+    policy: &Policy,
+    m: &Minibatch,
+    clip_value_loss: bool,
+    next_purchase_coef: f32,
+) -> Tensor<1> {
+    let (b, input) = (m.adv.len(), policy.input_dim());
+    let eval = policy.evaluate(
+        jsae_nn::tensor2(m.x.clone(), b, input, policy.device()),
+        &m.actions,
+    );
+    let log_ratio = eval.logp - jsae_nn::tensor1(m.old_logp.clone(), policy.device());
+    let pg = clipped_surrogate_loss(
+        log_ratio,
+        jsae_nn::tensor1(m.adv.clone(), policy.device()),
+        0.2,
+    );
+    let ret = jsae_nn::tensor1(m.returns.clone(), policy.device());
+    let v_loss = if clip_value_loss {
+        let old = jsae_nn::tensor1(m.old_values.clone(), policy.device());
+        let unclipped = (eval.value.clone() - ret.clone()).square();
+        let clipped_v = old.clone() + (eval.value - old).clamp(-0.2, 0.2);
+        let clipped = (clipped_v - ret).square();
+        unclipped.max_pair(clipped).mean().mul_scalar(0.5)
+    } else {
+        (eval.value - ret).square().mean().mul_scalar(0.5)
+    };
+    let mut loss: Tensor<1> = pg - eval.entropy.mean().mul_scalar(0.05) + v_loss.mul_scalar(0.5);
+    if !m.next_purchase.is_empty() {
+        // -log pi(t | x) of the samples with a purchase, over all b samples
+        let with: Vec<usize> = (0..b).filter(|&i| m.next_purchase[i] != u32::MAX).collect();
+        let xs: Vec<f32> = with
+            .iter()
+            .flat_map(|&i| m.x[i * input..(i + 1) * input].to_vec())
+            .collect();
+        let targets = ActionBatch::Discrete(with.iter().map(|&i| m.next_purchase[i]).collect());
+        let logp = policy
+            .evaluate(
+                jsae_nn::tensor2(xs, with.len(), input, policy.device()),
+                &targets,
+            )
+            .logp;
+        loss = loss + logp.sum().neg().mul_scalar(next_purchase_coef / b as f32);
+    }
+    loss
 }
 
 /// The host's loss and gradients in `work` against burn's.

@@ -289,7 +289,7 @@ pub struct LearnerArgs {
     #[command(flatten)]
     pub run: RunFlags,
     /// Env steps of the run, all actors together [default: the settings file's, else the
-    /// environment's: 500000; 1000000 for MuJoCo; 300000 for the recommender].
+    /// environment and algorithm's: `jsae config --env E --algo A` prints them all].
     #[arg(long, env = "JSAE_ENV_STEPS")]
     pub env_steps: Option<u64>,
     /// Run directory.

@@ -6,7 +6,7 @@
 //! over all pairs of such items (what an embedding without that structure gives). Also g's
 //! spread per dimension.
 //!
-//!   cargo run --release -p jsae-cli --example recommender_structure -- RUN_DIR [RUN_DIR ...]
+//!   cargo run --release -p jsae-research --example recommender_structure -- RUN_DIR [RUN_DIR ...]
 
 use anyhow::{Context, Result, bail};
 use jsae_envs::recsys::data::{load_sessions, split_sessions};

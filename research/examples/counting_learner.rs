@@ -14,7 +14,7 @@
 //! visits, this one has only the purchases it saw: the most likely item out of 835 must be
 //! told apart from a handful of draws.
 //!
-//!   cargo run --release -p jsae-recommender --example counting_learner [SEED] [BUDGET]
+//!   cargo run --release -p jsae-research --example counting_learner [SEED] [BUDGET]
 
 use std::collections::HashMap;
 use std::hash::Hash;

@@ -14,7 +14,7 @@
 //! share of those episodes' steps in contexts visited fewer than `k` times. No learner that
 //! needs `k` visits per context can do better within the budget.
 //!
-//!   cargo run --release -p jsae-recommender --example context_value [SEED] [BUDGET]
+//!   cargo run --release -p jsae-research --example context_value [SEED] [BUDGET]
 
 use std::collections::HashMap;
 

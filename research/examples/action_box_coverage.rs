@@ -4,7 +4,7 @@
 //! and where f sends points spread uniformly over E (where the internal policy's Gaussian
 //! samples).
 //!
-//!   cargo run --release -p jsae-cli --example action_box_coverage -- RUN_DIR [RUN_DIR ...]
+//!   cargo run --release -p jsae-research --example action_box_coverage -- RUN_DIR [RUN_DIR ...]
 //!
 //! Reads each run's config.toml and newest embedding checkpoint; 20,000 samples, fixed seed.
 

@@ -4,12 +4,10 @@
 //! every container, native gRPC readiness and liveness probes on every served port, Services
 //! that select pods, a kustomization listing every file. A broken copy must be refused.
 
-mod common;
-
 use std::path::Path;
 use std::process::Command;
 
-use common::{repo_root, venv_python};
+use jsae_tests::{repo_root, venv_python};
 
 fn manifests(dir: &Path) -> Vec<std::path::PathBuf> {
     let mut files: Vec<_> = std::fs::read_dir(dir)

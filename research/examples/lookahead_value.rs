@@ -6,7 +6,7 @@
 //! `recommender-baseline`'s protocol. A small gap says the recommender is nearly a
 //! contextual bandit: what a recommendation does to later states is worth little.
 //!
-//!   cargo run --release -p jsae-recommender --example lookahead_value [SEED]
+//!   cargo run --release -p jsae-research --example lookahead_value [SEED]
 
 use std::collections::HashMap;
 

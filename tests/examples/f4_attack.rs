@@ -11,7 +11,7 @@
 //! `--store-mb` of such sessions in good calls, the process killed and started again: its
 //! start time and memory, with the model's checkpoint and without it.
 //!
-//!   cargo run --release -p jsae-recommender --example f4_attack -- attack [--jsae PATH]
+//!   cargo run --release -p jsae-tests --example f4_attack -- attack [--jsae PATH]
 //!
 //! With `--jsae PATH` the service is `PATH recommender ...`; without, this example starts
 //! itself as `f4_attack serve ...`, which is `jsae recommender`'s own main.
