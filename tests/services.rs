@@ -544,8 +544,8 @@ async fn a_fresh_learner_learns_from_logged_purchases_before_its_first_snapshot(
         r.top_n = 50;
         r.synthetic.items = 40;
         r.synthetic.sessions = 500;
-        c.ppo.logged_pretrain_epochs = pretrain;
-        c.ppo.logged_prior = prior;
+        c.ppo.recommender.logged_pretrain_epochs = pretrain;
+        c.ppo.recommender.logged_prior = prior;
         async move {
             let fresh = outputs(&c, None);
             let learner = start_learner(&c, None).await;

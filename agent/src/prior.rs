@@ -1,5 +1,5 @@
 //! A fixed prior over a categorical policy's actions, counted from logged purchases
-//! (`ppo.logged_prior`): the policy's logits are its network's outputs plus the log of an
+//! (`ppo.recommender.logged_prior`): the policy's logits are its network's outputs plus the log of an
 //! interpolated n-gram estimate of the item bought next, keyed by the input's one-hot
 //! columns. Pair counts are smoothed towards the last item's, the last item's towards all
 //! purchases, and those towards uniform (`SMOOTHING` pseudo-purchases at each level), so a

@@ -36,7 +36,7 @@ pub struct Weights {
     device: Device,
     /// The policy in use; the untrained template (its shape) before the first snapshot.
     policy: Policy,
-    /// The count prior its logits add (`ppo.logged_prior`), read with its bytes.
+    /// The count prior its logits add (`ppo.recommender.logged_prior`), read with its bytes.
     prior: PolicyPrior,
     policy_version: Option<u64>,
     embedding: Option<Embedding>,
@@ -82,7 +82,7 @@ impl Weights {
     }
 
     /// The count prior the policy's logits add, to pass to [`Policy::act`] (None unless
-    /// `ppo.logged_prior`).
+    /// `ppo.recommender.logged_prior`).
     pub fn prior(&self) -> Option<&CountPrior> {
         self.prior.get()
     }

@@ -71,25 +71,18 @@ fn with_json_logs_every_line_a_service_writes_is_json() {
 
     // the address it listens on, then its log until SIGTERM
     let dir = std::env::temp_dir().join(format!("jsae-json-logs-{}", std::process::id()));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae-learner"))
-        .args([
+    let (mut child, first) = learner_listening(
+        &[
             "--log-format",
             "json",
             "--env",
             "gridworld-discrete",
             "--algo",
             "ppo",
-        ])
-        .args(["--seed", "1", "--listen", "127.0.0.1:0", "--out"])
-        .arg(&dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .expect("starts");
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut first)
-        .expect("reads");
+        ],
+        &dir,
+        Stdio::piped(),
+    );
     let event: serde_json::Value = serde_json::from_str(&first).expect("a JSON line");
     let address = event["fields"]["address"].as_str().unwrap_or_default();
     assert!(address.starts_with("127.0.0.1:"), "{first}");
@@ -114,18 +107,11 @@ fn with_json_logs_every_line_a_service_writes_is_json() {
 fn jsae_learner_reads_a_recommender_runs_logged_purchases_as_jsae_learner_does() {
     // the recommender's PPO counts its prior from the logs: the binary used to refuse it
     let dir = std::env::temp_dir().join(format!("jsae-learner-logs-{}", std::process::id()));
-    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae-learner"))
-        .args(["--env", "recommender", "--algo", "ppo", "--seed", "1"])
-        .args(["--listen", "127.0.0.1:0", "--out"])
-        .arg(&dir)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::null())
-        .spawn()
-        .expect("starts");
-    let mut first = String::new();
-    BufReader::new(child.stdout.take().expect("stdout"))
-        .read_line(&mut first)
-        .expect("reads");
+    let (mut child, first) = learner_listening(
+        &["--env", "recommender", "--algo", "ppo"],
+        &dir,
+        Stdio::null(),
+    );
     let _ = child.kill();
     let _ = child.wait();
     let _ = std::fs::remove_dir_all(&dir);
@@ -133,4 +119,26 @@ fn jsae_learner_reads_a_recommender_runs_logged_purchases_as_jsae_learner_does()
         first.contains("jsae-learner listening on 127.0.0.1:"),
         "{first:?}"
     );
+}
+
+/// `jsae-learner ARGS --seed 1 --listen 127.0.0.1:0 --out DIR` started, with the first line
+/// it wrote on stdout.
+fn learner_listening(
+    args: &[&str],
+    dir: &std::path::Path,
+    stderr: Stdio,
+) -> (std::process::Child, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_jsae-learner"))
+        .args(args)
+        .args(["--seed", "1", "--listen", "127.0.0.1:0", "--out"])
+        .arg(dir)
+        .stdout(Stdio::piped())
+        .stderr(stderr)
+        .spawn()
+        .expect("starts");
+    let mut first = String::new();
+    BufReader::new(child.stdout.take().expect("stdout"))
+        .read_line(&mut first)
+        .expect("reads");
+    (child, first)
 }

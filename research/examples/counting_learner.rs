@@ -8,7 +8,7 @@
 //! weighs a purchase of the recommended item by 1 / boost, undoing the simulator's boost;
 //! another smooths a pair's counts towards its last item's (an interpolated n-gram). Two
 //! more first count the logged purchases the model is built from (what
-//! `ppo.logged_pretrain_epochs` trains on): with no play at all, and before playing.
+//! `ppo.recommender.logged_pretrain_epochs` trains on): with no play at all, and before playing.
 //!
 //! Unlike `context_value`'s learner, which knows a pair's true continuation after `k`
 //! visits, this one has only the purchases it saw: the most likely item out of 835 must be

@@ -8,9 +8,10 @@ use std::fmt::Write as _;
 use crate::TrainConfig;
 
 /// The sources of every struct a run's settings are made of.
-const SOURCES: [&str; 4] = [
+const SOURCES: [&str; 5] = [
     include_str!("run.rs"),
     include_str!("ppo.rs"),
+    include_str!("ppo_recommender.rs"),
     include_str!("embedding.rs"),
     jsae_env_spec::SOURCE,
 ];

@@ -15,6 +15,7 @@ mod embedding;
 mod file_errors;
 mod flags;
 mod ppo;
+mod ppo_recommender;
 mod run;
 mod sets;
 
@@ -32,4 +33,5 @@ pub use jsae_env_spec::{
 };
 pub use jsae_nn::DeviceKind;
 pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};
+pub use ppo_recommender::RecommenderPpoConfig;
 pub use run::{ConfigError, ExplorationConfig, TrainConfig};

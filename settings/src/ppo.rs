@@ -2,6 +2,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use crate::ppo_recommender::RecommenderPpoConfig;
+
 /// PPO settings. Defaults follow the common PPO implementation details (orthogonal init,
 /// Adam eps 1e-5, GAE, clipped surrogate, advantage normalisation, global grad-norm
 /// clipping, linear LR annealing) with the paper's grid where it searched (lr, std, batch,
@@ -55,26 +57,6 @@ pub struct PpoConfig {
     /// The share of the run's env steps at which the cap reaches `entropy_log_std_final`
     /// (after `entropy_cap_anneal_from`, at most 1); it stays there for the rest of the run.
     pub entropy_cap_anneal_to: f64,
-    /// Weight of a self-supervised loss for the recommender's categorical policy (its
-    /// actions are the items of the state's factors): the cross-entropy of the policy's
-    /// softmax against the item bought next, read from the next state, added to the PPO loss
-    /// (as in self-supervised RL for recommendation, Xin et al. 2020). 0: off.
-    pub next_purchase_coef: f64,
-    /// Passes of pre-training on logged purchases before the policy plays (0: none; the
-    /// recommender's categorical policy, fused update): the next-purchase cross-entropy
-    /// alone, over every step of the sessions the simulator's model is built from (never the
-    /// held-out ones), at `logged_pretrain_lr`. A shop has its purchase logs before it has
-    /// a policy.
-    pub logged_pretrain_epochs: usize,
-    /// Adam's learning rate at the start of `logged_pretrain_epochs`, annealed linearly to 0
-    /// over them.
-    pub logged_pretrain_lr: f64,
-    /// Add to the categorical policy's logits the log of a next-purchase estimate counted
-    /// from the same logged purchases (an interpolated n-gram: a pair's counts smoothed
-    /// towards its last item's, those towards all purchases'), fixed, so the network learns
-    /// only what the counts get wrong (the recommender's PPO, fused update, no input
-    /// normalisation). The counts travel in the policy's bytes.
-    pub logged_prior: bool,
     /// Global gradient-norm limit.
     pub max_grad_norm: f32,
     /// Normalise advantages per minibatch.
@@ -87,21 +69,6 @@ pub struct PpoConfig {
     /// zero ("wide and deep"): on one-hot states (the recommender's items) a score per
     /// (state item, action) that a narrow hidden layer cannot hold.
     pub wide_actor: bool,
-    /// Buckets of a crossed feature of one-hot states (0: none): the last two factors'
-    /// values (the recommender's item before the last and its last item) hashed together
-    /// into one of this many columns, appended to the input of the actor and of the critic,
-    /// whose weights start at zero. A pair's own row of the first layer lets the networks
-    /// tell pairs apart that share an item, which a narrow layer over the items alone
-    /// cannot. Trained with a lazy Adam on the first layers (only the rows a minibatch's
-    /// inputs pick are stepped); the fused update only.
-    pub pair_buckets: usize,
-    /// The crossed feature's input value (1: a plain one-hot). Adam steps a weight by about
-    /// the learning rate whatever its gradient's size, so this multiplies how fast a pair's
-    /// own row changes the network's output: a pair seen a few times must count.
-    pub pair_scale: f32,
-    /// Buckets per pair (1 or more): with two, a pair's feature is the sum of two rows, which
-    /// two pairs share only if both of their buckets collide.
-    pub pair_hashes: usize,
     /// Initial log standard deviation of the Gaussian policy.
     pub init_log_std: f32,
     /// Bound the Gaussian mean with tanh to `[-1, 1]` (JSAE: the action-embedding space is
@@ -132,6 +99,9 @@ pub struct PpoConfig {
     /// Which implementation runs the update: `fused` (host loss, gradients and Adam over
     /// GEMMs; the default) or `burn` (burn's autodiff graph; the reference, slower).
     pub update: UpdatePath,
+    /// The recommender's own (`[ppo.recommender]`: the next-purchase loss, the logged
+    /// purchases, the pair feature; for `--env recommender --algo ppo` only).
+    pub recommender: RecommenderPpoConfig,
 }
 
 /// Which implementation runs the PPO update; both compute the same loss, gradients and Adam
@@ -165,18 +135,11 @@ impl Default for PpoConfig {
             entropy_log_std_final: None,
             entropy_cap_anneal_from: 0.75,
             entropy_cap_anneal_to: 1.0,
-            next_purchase_coef: 0.0,
-            logged_pretrain_epochs: 0,
-            logged_pretrain_lr: 1e-3,
-            logged_prior: false,
             max_grad_norm: 0.5,
             norm_adv: true,
             target_kl: None,
             hidden: vec![64, 64],
             wide_actor: false,
-            pair_buckets: 0,
-            pair_scale: 1.0,
-            pair_hashes: 1,
             init_log_std: 0.0,
             tanh_mean: false,
             reward_scaling: true,
@@ -185,6 +148,7 @@ impl Default for PpoConfig {
             max_policy_lag: 4,
             max_update_steps: None,
             update: UpdatePath::Fused,
+            recommender: RecommenderPpoConfig::default(),
         }
     }
 }
@@ -201,7 +165,7 @@ pub const MAX_HIDDEN_WEIGHTS: usize = 1 << 24;
 pub const MAX_BATCH_STEPS: usize = 1 << 22;
 /// Most epochs over one batch.
 pub const MAX_EPOCHS: usize = 1_000;
-/// Most buckets of the crossed pair feature (`ppo.pair_buckets`; 131,072 in use).
+/// Most buckets of the crossed pair feature (`ppo.recommender.pair_buckets`; 131,072 in use).
 pub const MAX_PAIR_BUCKETS: usize = 1 << 22;
 
 /// [`PpoConfig::max_abs_reward`]'s default.
@@ -266,13 +230,13 @@ impl PpoConfig {
     /// Whether a fresh policy learns from logged purchases (`logged_prior`,
     /// `logged_pretrain_epochs`).
     pub fn wants_logs(&self) -> bool {
-        self.logged_prior || self.logged_pretrain_epochs > 0
+        self.recommender.wants_logs()
     }
 
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
         self.validate_schedule()?;
-        self.validate_recommender()?;
+        self.recommender.validate(self.update, self.normalize_obs)?;
         self.validate_sizes()
     }
 
@@ -288,7 +252,10 @@ impl PpoConfig {
         }
         for (key, lr) in [
             ("lr", self.lr),
-            ("logged_pretrain_lr", self.logged_pretrain_lr),
+            (
+                "recommender.logged_pretrain_lr",
+                self.recommender.logged_pretrain_lr,
+            ),
         ] {
             if !(lr > 0.0 && lr.is_finite()) {
                 return Err(format!("ppo.{key} must be positive, got {lr}"));
@@ -329,55 +296,6 @@ impl PpoConfig {
         Ok(())
     }
 
-    /// The recommender's: the next-purchase loss, the pair feature, the logged purchases.
-    fn validate_recommender(&self) -> Result<(), String> {
-        if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
-            return Err("ppo.next_purchase_coef must be a finite number >= 0".into());
-        }
-        if self.pair_buckets > 0 && (self.update != UpdatePath::Fused || self.normalize_obs) {
-            return Err(
-                "ppo.pair_buckets needs ppo.update = \"fused\" and ppo.normalize_obs = false \
-                 (the crossed feature is built for the host update's one-hot inputs); set \
-                 ppo.pair_buckets = 0 for the others"
-                    .into(),
-            );
-        }
-        if !(self.pair_scale > 0.0 && self.pair_scale.is_finite()) {
-            return Err(format!(
-                "ppo.pair_scale must be a positive number, got {}",
-                self.pair_scale
-            ));
-        }
-        if !(1..=8).contains(&self.pair_hashes) {
-            return Err(format!(
-                "ppo.pair_hashes must be between 1 and 8, got {}",
-                self.pair_hashes
-            ));
-        }
-        if self.pair_buckets > (1 << 24) {
-            return Err(format!(
-                "ppo.pair_buckets must be at most 16777216, got {}",
-                self.pair_buckets
-            ));
-        }
-        if self.logged_pretrain_epochs > 0 && self.update != UpdatePath::Fused {
-            return Err(
-                "ppo.logged_pretrain_epochs needs ppo.update = \"fused\"; set \
-                 ppo.logged_pretrain_epochs = 0 for the burn update"
-                    .into(),
-            );
-        }
-        if self.logged_prior && (self.update != UpdatePath::Fused || self.normalize_obs) {
-            return Err(
-                "ppo.logged_prior needs ppo.update = \"fused\" and ppo.normalize_obs = false \
-                 (the prior is keyed by the host update's one-hot inputs); set \
-                 ppo.logged_prior = false for the others"
-                    .into(),
-            );
-        }
-        Ok(())
-    }
-
     /// The networks' and the batch's sizes against the limits a settings file may ask for.
     fn validate_sizes(&self) -> Result<(), String> {
         if self.hidden.is_empty() || self.hidden.contains(&0) {
@@ -397,7 +315,6 @@ impl PpoConfig {
             ("batch_steps", self.batch_steps, MAX_BATCH_STEPS),
             ("minibatch_size", self.minibatch_size, MAX_BATCH_STEPS),
             ("epochs", self.epochs, MAX_EPOCHS),
-            ("pair_buckets", self.pair_buckets, MAX_PAIR_BUCKETS),
         ] {
             if v > most {
                 return Err(format!("ppo.{key} is {v}, at most {most}"));

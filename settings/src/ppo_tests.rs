@@ -79,31 +79,31 @@ fn a_count_of_minibatches_grows_the_minibatch_with_the_batch() {
 #[test]
 fn the_logged_prior_is_the_recommenders_ppo_default_and_the_pair_feature_valid_there() {
     let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
-    assert!(ppo.ppo.logged_prior);
-    assert_eq!(ppo.ppo.pair_buckets, 0);
-    assert_eq!(ppo.ppo.logged_pretrain_epochs, 0);
+    assert!(ppo.ppo.recommender.logged_prior);
+    assert_eq!(ppo.ppo.recommender.pair_buckets, 0);
+    assert_eq!(ppo.ppo.recommender.logged_pretrain_epochs, 0);
     assert_eq!(ppo.ppo.gamma, 0.0);
     ppo.validate().expect("the defaults are valid");
     let jsae = TrainConfig::defaults(EnvName::Recommender, Algo::Jsae);
-    assert!(!jsae.ppo.logged_prior);
-    assert_eq!(jsae.ppo.pair_buckets, 0);
-    ppo.ppo.pair_buckets = 131_072;
+    assert!(!jsae.ppo.recommender.logged_prior);
+    assert_eq!(jsae.ppo.recommender.pair_buckets, 0);
+    ppo.ppo.recommender.pair_buckets = 131_072;
     ppo.validate()
         .expect("the pair feature is valid on the recommender");
     let mut c = TrainConfig::defaults(EnvName::GridworldDiscrete, Algo::Ppo);
-    c.ppo.pair_buckets = 64;
+    c.ppo.recommender.pair_buckets = 64;
     let reason = c.validate().expect_err("not the recommender").to_string();
-    assert!(reason.contains("ppo.pair_buckets"), "{reason}");
+    assert!(reason.contains("ppo.recommender.pair_buckets"), "{reason}");
     for change in [
         |c: &mut TrainConfig| c.ppo.update = UpdatePath::Burn,
         |c: &mut TrainConfig| c.ppo.normalize_obs = true,
-        |c: &mut TrainConfig| c.ppo.pair_hashes = 0,
-        |c: &mut TrainConfig| c.ppo.pair_scale = f32::NAN,
+        |c: &mut TrainConfig| c.ppo.recommender.pair_hashes = 0,
+        |c: &mut TrainConfig| c.ppo.recommender.pair_scale = f32::NAN,
     ] {
         let mut c = ppo.clone();
         change(&mut c);
         let reason = c.validate().expect_err("refused").to_string();
-        assert!(reason.contains("ppo.pair_"), "{reason}");
+        assert!(reason.contains("ppo.recommender.pair_"), "{reason}");
     }
 }
 
@@ -137,7 +137,9 @@ fn absurd_sizes_are_refused_before_anything_is_allocated() {
         ("ppo.batch_steps", |c| {
             c.ppo.batch_steps = MAX_BATCH_STEPS + 1
         }),
-        ("ppo.pair_buckets", |c| c.ppo.pair_buckets = usize::MAX),
+        ("ppo.recommender.pair_buckets", |c| {
+            c.ppo.recommender.pair_buckets = usize::MAX
+        }),
         ("embedding.decoder_hidden", |c| {
             c.embedding.decoder_hidden = 1 << 30
         }),
@@ -153,51 +155,94 @@ fn absurd_sizes_are_refused_before_anything_is_allocated() {
 #[test]
 fn logged_pretraining_is_for_the_recommenders_ppo_on_the_fused_update() {
     let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
-    ppo.ppo.logged_pretrain_epochs = 5;
+    ppo.ppo.recommender.logged_pretrain_epochs = 5;
     ppo.validate().expect("valid");
     for (env, algo) in [
         (EnvName::Recommender, Algo::Jsae),
         (EnvName::Slotmachine, Algo::Ppo),
     ] {
         let mut c = TrainConfig::defaults(env, algo);
-        c.ppo.logged_pretrain_epochs = 5;
+        c.ppo.recommender.logged_pretrain_epochs = 5;
         let reason = c.validate().expect_err("refused").to_string();
-        assert!(reason.contains("ppo.logged_pretrain_epochs"), "{reason}");
+        assert!(
+            reason.contains("ppo.recommender.logged_pretrain_epochs"),
+            "{reason}"
+        );
     }
     let mut burn = ppo.clone();
-    (burn.ppo.update, burn.ppo.pair_buckets) = (UpdatePath::Burn, 0);
+    (burn.ppo.update, burn.ppo.recommender.pair_buckets) = (UpdatePath::Burn, 0);
     let reason = burn.validate().expect_err("the burn update").to_string();
-    assert!(reason.contains("ppo.logged_pretrain_epochs"), "{reason}");
+    assert!(
+        reason.contains("ppo.recommender.logged_pretrain_epochs"),
+        "{reason}"
+    );
     for bad in [0.0, -1e-3, f64::NAN] {
         let mut c = ppo.clone();
-        c.ppo.logged_pretrain_lr = bad;
+        c.ppo.recommender.logged_pretrain_lr = bad;
         let reason = c.validate().expect_err("not positive").to_string();
-        assert!(reason.contains("ppo.logged_pretrain_lr"), "{reason}");
+        assert!(
+            reason.contains("ppo.recommender.logged_pretrain_lr"),
+            "{reason}"
+        );
     }
 }
 
 #[test]
 fn the_logged_prior_is_for_the_recommenders_ppo_on_the_fused_update_without_normalising() {
     let mut ppo = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
-    ppo.ppo.logged_prior = true;
+    ppo.ppo.recommender.logged_prior = true;
     ppo.validate().expect("valid");
     for (env, algo) in [
         (EnvName::Recommender, Algo::Jsae),
         (EnvName::Slotmachine, Algo::Ppo),
     ] {
         let mut c = TrainConfig::defaults(env, algo);
-        c.ppo.logged_prior = true;
+        c.ppo.recommender.logged_prior = true;
         let reason = c.validate().expect_err("refused").to_string();
-        assert!(reason.contains("ppo.logged_prior"), "{reason}");
+        assert!(reason.contains("ppo.recommender.logged_prior"), "{reason}");
     }
     for change in [
         |c: &mut TrainConfig| c.ppo.update = UpdatePath::Burn,
         |c: &mut TrainConfig| c.ppo.normalize_obs = true,
     ] {
         let mut c = ppo.clone();
-        (c.ppo.pair_buckets, c.ppo.logged_pretrain_epochs) = (0, 0);
+        (
+            c.ppo.recommender.pair_buckets,
+            c.ppo.recommender.logged_pretrain_epochs,
+        ) = (0, 0);
         change(&mut c);
         let reason = c.validate().expect_err("refused").to_string();
-        assert!(reason.contains("ppo.logged_prior"), "{reason}");
+        assert!(reason.contains("ppo.recommender.logged_prior"), "{reason}");
     }
+}
+
+#[test]
+fn the_recommenders_keys_read_from_their_sub_table_and_from_an_older_files_ppo_table() {
+    let dir = std::env::temp_dir().join(format!("jsae-ppo-recommender-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("dir");
+    let read = |name: &str, text: &str| {
+        let file = dir.join(name);
+        std::fs::write(&file, text).expect("write");
+        TrainConfig::from_layers(Some(EnvName::Recommender), Some(Algo::Ppo), Some(&file))
+    };
+    // one key of the sub-table leaves the others at the pair's defaults (logged_prior: true)
+    let new = read("new.toml", "[ppo.recommender]\npair_scale = 2.0\n").expect("reads");
+    assert_eq!(new.ppo.recommender.pair_scale, 2.0);
+    assert!(new.ppo.recommender.logged_prior);
+    // a run directory's config.toml of before: the keys in [ppo] itself
+    let old = read(
+        "old.toml",
+        "[ppo]\nlr = 1e-4\nlogged_prior = false\nnext_purchase_coef = 0.5\n",
+    )
+    .expect("an older file reads");
+    assert_eq!(old.ppo.lr, 1e-4);
+    assert!(!old.ppo.recommender.logged_prior);
+    assert_eq!(old.ppo.recommender.next_purchase_coef, 0.5);
+    // what a run writes now reads back the same
+    let again = read("again.toml", &old.to_toml()).expect("reads back");
+    assert_eq!(again.ppo, old.ppo);
+    assert!(old.to_toml().contains("[ppo.recommender]"));
+    let unknown = read("unknown.toml", "[ppo.recommender]\nlr = 1e-4\n");
+    assert!(unknown.is_err(), "lr is [ppo]'s");
+    let _ = std::fs::remove_dir_all(&dir);
 }

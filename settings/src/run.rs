@@ -290,7 +290,7 @@ impl TrainConfig {
             // (planning adds 0.07) must move them slowly: at lr 1e-4 seed 1001 fell from
             // 7.99 to 7.77, at 1e-5 7.98 (results/sweeps/recommender-prior.toml).
             self.ppo.hidden = vec![128, 128];
-            self.ppo.logged_prior = true;
+            self.ppo.recommender.logged_prior = true;
             self.ppo.gamma = 0.0;
             self.ppo.lr = 1e-5;
         }
@@ -403,7 +403,8 @@ impl TrainConfig {
             (path, text, "environment"),
         )?;
         c.embedding = overlay(&c.embedding, parsed.embedding, (path, text, "embedding"))?;
-        c.ppo = overlay(&c.ppo, parsed.ppo, (path, text, "ppo"))?;
+        let ppo = parsed.ppo.map(crate::ppo_recommender::nest_legacy_keys);
+        c.ppo = overlay(&c.ppo, ppo, (path, text, "ppo"))?;
         c.exploration = overlay(
             &c.exploration,
             parsed.exploration,
@@ -463,25 +464,25 @@ impl TrainConfig {
         let items = "purchase logs and a categorical policy over their items";
         for (set, key, why) in [
             (
-                self.ppo.next_purchase_coef > 0.0,
+                self.ppo.recommender.next_purchase_coef > 0.0,
                 "next_purchase_coef",
                 "a categorical policy over the items of the state",
             ),
             (
-                self.ppo.logged_pretrain_epochs > 0,
+                self.ppo.recommender.logged_pretrain_epochs > 0,
                 "logged_pretrain_epochs",
                 items,
             ),
-            (self.ppo.logged_prior, "logged_prior", items),
+            (self.ppo.recommender.logged_prior, "logged_prior", items),
             (
-                self.ppo.pair_buckets > 0,
+                self.ppo.recommender.pair_buckets > 0,
                 "pair_buckets",
                 "a pair of one-hot items in the policy's input",
             ),
         ] {
             if set && !recommender_ppo {
                 return bad(format!(
-                    "ppo.{key} is for --env recommender --algo ppo ({why})"
+                    "ppo.recommender.{key} is for --env recommender --algo ppo ({why})"
                 ));
             }
         }

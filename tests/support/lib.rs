@@ -53,7 +53,7 @@ pub fn small_config(env: EnvName, algo: Algo, seed: u64, out: PathBuf) -> TrainC
     c.embedding.pretrain_epochs = 3;
     c.ppo.epochs = 2;
     // one pass over the recommender's logged purchases where the defaults pre-train
-    c.ppo.logged_pretrain_epochs = c.ppo.logged_pretrain_epochs.min(1);
+    c.ppo.recommender.logged_pretrain_epochs = c.ppo.recommender.logged_pretrain_epochs.min(1);
     c.out = out;
     c
 }

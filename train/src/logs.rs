@@ -1,5 +1,5 @@
 //! The logged purchases a fresh learner's policy learns from before it plays
-//! (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`): the recommender's sessions without the
+//! (`ppo.recommender.logged_prior`, `ppo.recommender.logged_pretrain_epochs`): the recommender's sessions without the
 //! held-out ones, read as the environment reads them. The learner knows no data set; its
 //! callers (`jsae learner`, `jsae train --one-process`) pass this in.
 

@@ -117,7 +117,7 @@ pub struct Policy {
     tanh_mean: bool,
     /// Where the entropy bonus stops counting the log-std (`PpoConfig::entropy_log_std_cap`).
     entropy_log_std_max: f32,
-    /// The crossed pair feature the networks read after `input` (`ppo.pair_buckets`,
+    /// The crossed pair feature the networks read after `input` (`ppo.recommender.pair_buckets`,
     /// `pair_hashes`, `pair_scale`), if any.
     pair: Option<PairCross>,
     /// The actor on the host, for inference on crossed one-hot inputs (a lookup of a few
@@ -142,7 +142,7 @@ impl Policy {
             output: head.outputs(),
             output_gain: 0.01,
             skip: config.wide_actor,
-            zero_inputs: config.pair_buckets,
+            zero_inputs: config.recommender.pair_buckets,
         }
         .init(rng, device);
         let critic = MlpConfig {
@@ -151,7 +151,7 @@ impl Policy {
             output: 1,
             output_gain: 1.0,
             skip: false,
-            zero_inputs: config.pair_buckets,
+            zero_inputs: config.recommender.pair_buckets,
         }
         .init(rng, device);
         let dim = match head {
@@ -170,10 +170,10 @@ impl Policy {
             input,
             tanh_mean: config.tanh_mean,
             entropy_log_std_max: config.entropy_log_std_cap().unwrap_or(LOG_STD_MAX),
-            pair: (config.pair_buckets > 0).then_some(PairCross {
-                buckets: config.pair_buckets,
-                hashes: config.pair_hashes,
-                value: config.pair_scale,
+            pair: (config.recommender.pair_buckets > 0).then_some(PairCross {
+                buckets: config.recommender.pair_buckets,
+                hashes: config.recommender.pair_hashes,
+                value: config.recommender.pair_scale,
             }),
             host_actor: OnceLock::new(),
             device: device.clone(),

@@ -9,7 +9,7 @@ use jsae_settings::PpoConfig;
 use super::{Policy, PolicyHead};
 use crate::prior::{CountPrior, frame, unframe};
 
-/// The prior a categorical policy's logits add (`ppo.logged_prior`), held beside the policy
+/// The prior a categorical policy's logits add (`ppo.recommender.logged_prior`), held beside the policy
 /// and passed to [`Policy::act`]. With the setting on, a policy's bytes are [`frame`]d: the
 /// weight record, then the counts once they are counted; with it off, the record alone.
 #[derive(Debug, Clone, Default)]
@@ -22,12 +22,12 @@ impl PolicyPrior {
     /// No counts yet; framed bytes where the settings ask for a prior.
     pub fn new(config: &PpoConfig) -> Self {
         Self {
-            framed: config.logged_prior,
+            framed: config.recommender.logged_prior,
             counts: None,
         }
     }
 
-    /// Whether the settings ask for a prior (`ppo.logged_prior`).
+    /// Whether the settings ask for a prior (`ppo.recommender.logged_prior`).
     pub fn in_use(&self) -> bool {
         self.framed
     }
@@ -47,7 +47,7 @@ impl PolicyPrior {
     /// # Panics
     /// When the settings ask for no prior, or it is not over `policy`'s actions.
     pub fn set(&mut self, prior: CountPrior, policy: &Policy) {
-        assert!(self.framed, "ppo.logged_prior is off");
+        assert!(self.framed, "ppo.recommender.logged_prior is off");
         assert_eq!(
             Some(prior.actions()),
             match policy.head() {

@@ -119,7 +119,7 @@ pub struct HostPolicy {
     pub tanh_mean: bool,
     /// The log-std up to which the entropy bonus counts.
     pub entropy_log_std_max: f32,
-    /// The prior the categorical logits add (`ppo.logged_prior`), not trained.
+    /// The prior the categorical logits add (`ppo.recommender.logged_prior`), not trained.
     pub prior: Option<std::sync::Arc<CountPrior>>,
 }
 

@@ -29,7 +29,7 @@ pub(super) struct Batch {
     pub(super) returns: Vec<f32>,
     pub(super) values: Vec<f32>,
     /// The item bought after each step ([`next_purchases`]; [`NO_TARGET`] where there is
-    /// none), or empty when `ppo.next_purchase_coef` is 0.
+    /// none), or empty when `ppo.recommender.next_purchase_coef` is 0.
     pub(super) next_purchase: Vec<u32>,
 }
 
@@ -178,7 +178,7 @@ impl Batch {
         };
         let purchase_items = match policy.head() {
             jsae_agent::PolicyHead::Categorical { n }
-                if config.next_purchase_coef > 0.0 && x_dim > n =>
+                if config.recommender.next_purchase_coef > 0.0 && x_dim > n =>
             {
                 Some(n)
             }

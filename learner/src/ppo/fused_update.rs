@@ -76,11 +76,11 @@ pub(super) fn epochs(
         clip_value_loss: config.clip_value_loss,
         ent_coef: config.ent_coef as f32,
         vf_coef: config.vf_coef as f32,
-        next_purchase_coef: config.next_purchase_coef as f32,
+        next_purchase_coef: config.recommender.next_purchase_coef as f32,
     };
     let work = state.work.get_or_insert_with(|| FusedWork::new(host));
     // the crossed feature's first layers are stepped only in the rows a minibatch touches
-    let lazy = config.pair_buckets > 0 && matches!(x, NetworkInput::Sparse(_));
+    let lazy = config.recommender.pair_buckets > 0 && matches!(x, NetworkInput::Sparse(_));
     work.accumulate_input_rows = lazy;
     let mut touched = Vec::new();
     let mb = config.minibatch_len(batch.len());

@@ -70,7 +70,7 @@ impl std::fmt::Debug for Adam {
 pub struct Learner {
     config: PpoConfig,
     policy: Policy,
-    /// The count prior the policy's logits add (`ppo.logged_prior`), beside it.
+    /// The count prior the policy's logits add (`ppo.recommender.logged_prior`), beside it.
     prior: PolicyPrior,
     inference_device: Device,
     optim: Adam,
@@ -240,7 +240,7 @@ impl Learner {
         &self.policy
     }
 
-    /// The count prior the policy's logits add (None unless `ppo.logged_prior` and counted).
+    /// The count prior the policy's logits add (None unless `ppo.recommender.logged_prior` and counted).
     pub fn prior(&self) -> Option<&CountPrior> {
         self.prior.get()
     }

@@ -1,6 +1,6 @@
 //! Readying the recommender's categorical policy from logged purchases before it plays: the
-//! count prior its logits add (`ppo.logged_prior`, [`jsae_agent::prior`]) and pre-training
-//! (`ppo.logged_pretrain_epochs`): the next-purchase cross-entropy alone over the steps of
+//! count prior its logits add (`ppo.recommender.logged_prior`, [`jsae_agent::prior`]) and pre-training
+//! (`ppo.recommender.logged_pretrain_epochs`): the next-purchase cross-entropy alone over the steps of
 //! the sessions the simulator's model is built from (the held-out ones never), through the
 //! PPO update's own minibatches, clipping and Adam on the fused path. With no advantages and
 //! the entropy and value terms off only the actor moves; PPO then starts with fresh Adam
@@ -61,8 +61,8 @@ impl std::fmt::Display for PretrainReport {
 }
 
 impl Learner {
-    /// Whether the settings ask for logged purchases (`ppo.logged_prior`,
-    /// `ppo.logged_pretrain_epochs`).
+    /// Whether the settings ask for logged purchases (`ppo.recommender.logged_prior`,
+    /// `ppo.recommender.logged_pretrain_epochs`).
     pub fn wants_logs(&self) -> bool {
         self.config.wants_logs()
     }
@@ -82,20 +82,20 @@ impl Learner {
         }
         let logged = logged.ok_or_else(|| {
             LearnerError::Pretrain(
-                "ppo.logged_prior and ppo.logged_pretrain_epochs need logged purchases (the \
+                "ppo.recommender.logged_prior and ppo.recommender.logged_pretrain_epochs need logged purchases (the \
                  recommender's data)"
                     .into(),
             )
         })?;
         let mut notes = Vec::new();
-        if self.config.logged_prior {
+        if self.config.recommender.logged_prior {
             let contexts = self.count_prior(&logged.states, &logged.space, &logged.next)?;
             notes.push(format!(
                 "policy prior counted from {} logged purchases ({contexts} item pairs)",
                 logged.next.len()
             ));
         }
-        if self.config.logged_pretrain_epochs > 0 {
+        if self.config.recommender.logged_pretrain_epochs > 0 {
             let r = self.pretrain_next_purchase(&logged.states, &logged.space, &logged.next)?;
             notes.push(r.to_string());
         }
@@ -113,8 +113,10 @@ impl Learner {
         space: &StateSpace,
         next: &[u32],
     ) -> Result<usize, LearnerError> {
-        if !self.config.logged_prior {
-            return Err(LearnerError::Pretrain("ppo.logged_prior is off".into()));
+        if !self.config.recommender.logged_prior {
+            return Err(LearnerError::Pretrain(
+                "ppo.recommender.logged_prior is off".into(),
+            ));
         }
         let n = self.check_logged(states, space, next)?;
         let x_dim = space.feature_len();
@@ -132,7 +134,7 @@ impl Learner {
     }
 
     /// Trains the policy's softmax to predict the item bought next from `states` (of
-    /// `space`, as the actors encode them) for `ppo.logged_pretrain_epochs` passes; `next[i]`
+    /// `space`, as the actors encode them) for `ppo.recommender.logged_pretrain_epochs` passes; `next[i]`
     /// is the item bought after `states`' row `i`.
     ///
     /// # Errors
@@ -151,14 +153,14 @@ impl Learner {
         config.epochs = 1;
         config.ent_coef = 0.0;
         config.vf_coef = 0.0;
-        config.next_purchase_coef = 1.0;
+        config.recommender.next_purchase_coef = 1.0;
         config.norm_adv = false;
         config.target_kl = None;
         let mut host = HostPolicy::from_policy(&self.policy, self.prior.shared());
         let mut state = FusedState::new();
-        let lr = self.config.logged_pretrain_lr as f32;
+        let lr = self.config.recommender.logged_pretrain_lr as f32;
         let rng = &mut self.rng;
-        let wanted = self.config.logged_pretrain_epochs;
+        let wanted = self.config.recommender.logged_pretrain_epochs;
         let losses: Vec<f64> = rayon::scope(|_| {
             let mut order: Vec<usize> = (0..batch.len()).collect();
             (0..wanted)
@@ -287,6 +289,7 @@ mod tests {
     use crate::PpoConfig;
     use crate::fused::HostPolicy;
     use jsae_agent::PolicyHead;
+    use jsae_settings::RecommenderPpoConfig;
 
     /// 6 items and "none": the item bought after (a, b) is `(a + 2 b + 1) mod 6`, which no
     /// sum of a score per item and a score per last item gives; a pair feature tells the
@@ -308,11 +311,14 @@ mod tests {
 
     fn learner(epochs: usize) -> Learner {
         let config = PpoConfig {
-            logged_pretrain_epochs: epochs,
-            next_purchase_coef: 1.0,
-            pair_buckets: 256,
             minibatch_size: 64,
-            logged_pretrain_lr: 3e-3,
+            recommender: RecommenderPpoConfig {
+                logged_pretrain_epochs: epochs,
+                next_purchase_coef: 1.0,
+                pair_buckets: 256,
+                logged_pretrain_lr: 3e-3,
+                ..RecommenderPpoConfig::default()
+            },
             ..PpoConfig::default()
         };
         Learner::new(
@@ -362,7 +368,10 @@ mod tests {
         let (states, space, next) = logged();
         let with_prior = |seed| {
             let config = PpoConfig {
-                logged_prior: true,
+                recommender: RecommenderPpoConfig {
+                    logged_prior: true,
+                    ..RecommenderPpoConfig::default()
+                },
                 ..PpoConfig::default()
             };
             Learner::new(

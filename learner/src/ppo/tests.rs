@@ -8,6 +8,7 @@ use rand_chacha::ChaCha8Rng;
 use super::Learner;
 use crate::{PpoConfig, UpdatePath};
 use jsae_agent::PolicyHead;
+use jsae_settings::RecommenderPpoConfig;
 
 const STEPS: usize = 64;
 
@@ -124,9 +125,12 @@ fn crossed_pairs_train_only_the_bucket_rows_their_inputs_pick_and_act_as_burns_m
         batch_steps: 4 * STEPS,
         epochs: 2,
         minibatch_size: 60,
-        pair_buckets,
-        pair_scale: 2.0,
-        next_purchase_coef: 0.5,
+        recommender: RecommenderPpoConfig {
+            pair_buckets,
+            pair_scale: 2.0,
+            next_purchase_coef: 0.5,
+            ..RecommenderPpoConfig::default()
+        },
         ..PpoConfig::default()
     };
     let head = PolicyHead::Categorical { n };

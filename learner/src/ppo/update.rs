@@ -49,7 +49,7 @@ impl Learner {
                     &self.policy,
                     &m.x,
                     &m.next_purchase,
-                    self.config.next_purchase_coef,
+                    self.config.recommender.next_purchase_coef,
                 );
                 let eval = self.policy.evaluate(m.x, &m.actions);
                 let log_ratio = eval.logp - m.old_logp;
@@ -68,7 +68,7 @@ impl Learner {
                     - entropy.clone().mul_scalar(self.config.ent_coef as f32)
                     + v_loss.clone().mul_scalar(self.config.vf_coef as f32);
                 if let Some(nll) = next_nll {
-                    loss = loss + nll.mul_scalar(self.config.next_purchase_coef as f32);
+                    loss = loss + nll.mul_scalar(self.config.recommender.next_purchase_coef as f32);
                 }
                 let mut grads = GradientsParams::from_grads(loss.backward(), self.policy.net());
                 let norm = nn::clip_global_grad_norm(

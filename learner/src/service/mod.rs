@@ -15,7 +15,7 @@
 //! from `checkpoints/policy-latest.ckpt`: the weights with their version, so actors that kept
 //! running stay valid, and the training state (optimiser, scaler, step accounts, wall time).
 //! A fresh run (neither resumed nor warm-started) first pre-trains on logged purchases where
-//! `ppo.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
+//! `ppo.recommender.logged_pretrain_epochs` asks (the recommender), before its first snapshot, which the
 //! actors wait for.
 
 mod evaluation;
@@ -60,7 +60,7 @@ pub struct LearnerOptions {
     /// final embedding checkpoint.
     pub embedder: Option<String>,
     /// Logged purchases a fresh run's policy learns from before its first snapshot, where
-    /// the settings ask (`ppo.logged_prior`, `ppo.logged_pretrain_epochs`).
+    /// the settings ask (`ppo.recommender.logged_prior`, `ppo.recommender.logged_pretrain_epochs`).
     pub logged: Option<Arc<LoggedPurchases>>,
     /// A stopped run continued (`jsae train --resume`): there must be a checkpoint. Its actors
     /// count from zero again, in new incarnations; the learner counts on from the
@@ -83,8 +83,8 @@ pub type LogsSource = fn(&TrainConfig) -> Result<Option<LoggedPurchases>, String
 pub fn no_logs(config: &TrainConfig) -> Result<Option<LoggedPurchases>, String> {
     if config.ppo.wants_logs() {
         return Err(
-            "the run's settings ask for logged purchases (ppo.logged_prior or \
-             ppo.logged_pretrain_epochs) and this binary reads no data set: run `jsae learner`, \
+            "the run's settings ask for logged purchases (ppo.recommender.logged_prior or \
+             ppo.recommender.logged_pretrain_epochs) and this binary reads no data set: run `jsae learner`, \
              which reads the recommender's, or set both off"
                 .into(),
         );
