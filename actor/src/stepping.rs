@@ -3,21 +3,64 @@
 //! for the embedder's pre-training, on-policy pacing, and each rollout's transitions and
 //! fragments handed to the async side's queues.
 
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
+use jsae_net::security::Security;
 use jsae_record::{Recorder, RecordingInfo};
 use jsae_settings::TrainConfig;
-use jsae_telemetry::ActorSample;
+use jsae_telemetry::{ActorMetrics, ActorSample};
 use jsae_wire::{EmbeddingSnapshot, PolicySnapshot, pb};
 use tokio::sync::{mpsc, watch};
 
 use crate::pacing::{Pace, Pacing};
 use crate::random_play::RandomPlay;
 use crate::recent_embeddings::RecentEmbeddings;
-use crate::service::{ActorExit, ActorOptions, ActorReport};
 use crate::worker::ActorWorker;
+
+/// How an actor run ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ActorExit {
+    /// The learner ended the run.
+    Finished,
+    /// Stopped from outside (signal, or the caller's stop future).
+    Stopped,
+}
+
+/// What an actor did.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ActorReport {
+    /// How it ended.
+    pub exit: ActorExit,
+    /// Env steps taken.
+    pub env_steps: u64,
+    /// Rollout fragments queued for the learner.
+    pub fragments: u64,
+    /// Every policy version applied, in order.
+    pub policy_versions: Vec<u64>,
+    /// Every embedding version applied, in order.
+    pub embedding_versions: Vec<u64>,
+}
+
+/// Where the actor connects, and who it is.
+#[derive(Debug, Clone)]
+pub struct ActorOptions {
+    /// This actor's id (distinct per actor: it seeds the environments and keys the learner's
+    /// step count).
+    pub id: u64,
+    /// Embedder URL (JSAE).
+    pub embedder: Option<String>,
+    /// Learner URL.
+    pub learner: String,
+    /// An MCAP file every stepped transition goes into, and the run's name in it.
+    pub record: Option<(PathBuf, String)>,
+    /// The Prometheus families the stepping thread updates.
+    pub metrics: ActorMetrics,
+    /// TLS and the token sent to the embedder and the learner.
+    pub security: Security,
+}
 
 pub(crate) enum Control {
     Evaluate(pb::EvalRequest),

@@ -75,7 +75,7 @@ impl Reference {
         let mut all: Vec<(u32, f64)> = (0..model.catalogue().len() as u32)
             .map(|a| (a, self.score(model, state, a)))
             .collect();
-        crate::scoring::best_k(&mut all, k, f64::total_cmp);
+        crate::ranking::best_k(&mut all, k, f64::total_cmp);
         all
     }
 

@@ -21,6 +21,7 @@ pub mod baseline;
 pub mod cli;
 pub mod grpc;
 pub mod offline;
+mod ranking;
 pub mod scoring;
 mod session_wire;
 pub mod sources;

@@ -12,7 +12,7 @@ use std::sync::OnceLock;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 
-use crate::report::ReportError;
+use crate::error::ReportError;
 
 /// Where a sans-serif TrueType font is looked for, after `$JSAE_FONT`.
 const FONT_PATHS: [&str; 5] = [

@@ -5,6 +5,7 @@
 
 #![forbid(unsafe_code)]
 
+mod error;
 pub mod figures;
 pub mod plot;
 pub mod report;

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use jsae_run_dir::MetricsTable;
 use serde::Deserialize;
 
+pub use crate::error::ReportError;
 use crate::figures::{self, Band, Figure};
 use crate::stats::{self, Interval, RESAMPLES};
 use jsae_experiments::grid::{Grid, ReportSpec};
@@ -17,30 +18,6 @@ use jsae_experiments::grid::{Grid, ReportSpec};
 const CURVE_POINTS: usize = 60;
 /// Bootstrap resamples per curve point (fewer than for the table: many points).
 const CURVE_RESAMPLES: usize = 1000;
-
-/// Why a report could not be made.
-#[derive(Debug, thiserror::Error)]
-pub enum ReportError {
-    /// A file could not be read or written.
-    #[error("{path}: {message}")]
-    File {
-        /// The file.
-        path: PathBuf,
-        /// What went wrong.
-        message: String,
-    },
-    /// The folder holds no finished run.
-    #[error("{0}: no finished run (runs/SETTING/RUN/summary.json)")]
-    Empty(PathBuf),
-    /// A figure could not be drawn.
-    #[error("figure {path}: {message}")]
-    Figure {
-        /// The figure.
-        path: PathBuf,
-        /// Why.
-        message: String,
-    },
-}
 
 fn file_error(path: &Path) -> impl FnOnce(String) -> ReportError + '_ {
     move |message| ReportError::File {

@@ -165,8 +165,6 @@ pub const MAX_HIDDEN_WEIGHTS: usize = 1 << 24;
 pub const MAX_BATCH_STEPS: usize = 1 << 22;
 /// Most epochs over one batch.
 pub const MAX_EPOCHS: usize = 1_000;
-/// Most buckets of the crossed pair feature (`ppo.recommender.pair_buckets`; 131,072 in use).
-pub const MAX_PAIR_BUCKETS: usize = 1 << 22;
 
 /// [`PpoConfig::max_abs_reward`]'s default.
 pub const DEFAULT_MAX_ABS_REWARD: f32 = 1e6;
@@ -236,7 +234,8 @@ impl PpoConfig {
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
         self.validate_schedule()?;
-        self.recommender.validate(self.update, self.normalize_obs)?;
+        self.recommender
+            .validate(self.update == UpdatePath::Fused, self.normalize_obs)?;
         self.validate_sizes()
     }
 

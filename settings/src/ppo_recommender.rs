@@ -5,7 +5,8 @@
 
 use serde::{Deserialize, Serialize};
 
-use crate::ppo::{MAX_PAIR_BUCKETS, UpdatePath};
+/// Most buckets of the crossed pair feature (`ppo.recommender.pair_buckets`; 131,072 in use).
+pub const MAX_PAIR_BUCKETS: usize = 1 << 22;
 
 /// The recommender's PPO settings.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -80,9 +81,9 @@ impl RecommenderPpoConfig {
         self.logged_prior || self.logged_pretrain_epochs > 0
     }
 
-    /// Checks the settings (the update path and input normalisation are `[ppo]`'s); the reason
-    /// names the bad key.
-    pub fn validate(&self, update: UpdatePath, normalize_obs: bool) -> Result<(), String> {
+    /// Checks the settings (`fused`: `ppo.update` is the fused update; `normalize_obs`:
+    /// `[ppo]`'s); the reason names the bad key.
+    pub fn validate(&self, fused: bool, normalize_obs: bool) -> Result<(), String> {
         if self.pair_buckets > MAX_PAIR_BUCKETS {
             return Err(format!(
                 "ppo.recommender.pair_buckets is {}, at most {MAX_PAIR_BUCKETS}",
@@ -92,7 +93,7 @@ impl RecommenderPpoConfig {
         if !(self.next_purchase_coef >= 0.0 && self.next_purchase_coef.is_finite()) {
             return Err("ppo.recommender.next_purchase_coef must be a finite number >= 0".into());
         }
-        if self.pair_buckets > 0 && (update != UpdatePath::Fused || normalize_obs) {
+        if self.pair_buckets > 0 && (!fused || normalize_obs) {
             return Err(
                 "ppo.recommender.pair_buckets needs ppo.update = \"fused\" and ppo.normalize_obs = false \
                  (the crossed feature is built for the host update's one-hot inputs); set \
@@ -118,14 +119,14 @@ impl RecommenderPpoConfig {
                 self.pair_buckets
             ));
         }
-        if self.logged_pretrain_epochs > 0 && update != UpdatePath::Fused {
+        if self.logged_pretrain_epochs > 0 && !fused {
             return Err(
                 "ppo.recommender.logged_pretrain_epochs needs ppo.update = \"fused\"; set \
                  ppo.recommender.logged_pretrain_epochs = 0 for the burn update"
                     .into(),
             );
         }
-        if self.logged_prior && (update != UpdatePath::Fused || normalize_obs) {
+        if self.logged_prior && (!fused || normalize_obs) {
             return Err(
                 "ppo.recommender.logged_prior needs ppo.update = \"fused\" and ppo.normalize_obs = false \
                  (the prior is keyed by the host update's one-hot inputs); set \

@@ -6,6 +6,7 @@
 
 use std::path::PathBuf;
 
+mod catalogue;
 pub mod data;
 pub mod env;
 pub mod instacart;
@@ -17,6 +18,7 @@ pub mod rees46;
 pub mod sessions;
 pub mod staging;
 pub mod store;
+mod stored_ids;
 pub mod synthetic;
 
 pub use data::{held_out_sessions, is_held_out};

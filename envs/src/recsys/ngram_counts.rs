@@ -8,7 +8,7 @@ use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::ngram::Catalogue;
+use super::catalogue::Catalogue;
 use super::sessions::Session;
 
 /// The key of a 2-item context `(before, last)`.

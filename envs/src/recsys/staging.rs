@@ -13,7 +13,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use super::RecsysError;
 use super::sessions::Session;
-use super::store::StoredIds;
+use super::stored_ids::StoredIds;
 
 /// Where a store's calls stage their sessions (`STORE/staging/`); shared, so that calls start
 /// staging without waiting for the writer (which may be busy with another call's commit).

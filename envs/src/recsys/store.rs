@@ -31,17 +31,16 @@
 //! a duplicate: by chance only (the key is secret), about 3 in 10^8 among 10^6 stored
 //! sessions (n^2 / 2^65).
 
-use std::collections::HashSet;
 use std::fs::File;
 use std::io::{BufRead, BufReader, BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
-use std::sync::{Arc, RwLock};
 
 use serde::{Deserialize, Serialize};
 
 use super::RecsysError;
 use super::sessions::{IdKey, Session};
 use super::staging::{Staged, StagedSessions, StagingArea};
+pub use super::stored_ids::StoredIds;
 
 /// The store's log of sessions in `dir`.
 pub fn sessions_file(dir: &Path) -> PathBuf {
@@ -135,57 +134,6 @@ pub fn read_commit(dir: &Path) -> Result<Option<CommitRecord>, RecsysError> {
             }),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(e) => Err(io(&path)(e)),
-    }
-}
-
-/// The keyed hashes of the stored sessions' ids, shared by the writer (which adds a
-/// commit's) and the calls staging sessions (which skip ids stored already).
-#[derive(Debug, Clone)]
-pub struct StoredIds {
-    key: IdKey,
-    hashes: Arc<RwLock<HashSet<u64>>>,
-}
-
-impl StoredIds {
-    fn new(key: IdKey) -> Self {
-        Self {
-            key,
-            hashes: Arc::default(),
-        }
-    }
-
-    /// The store's keyed hash of a session id.
-    pub fn hash(&self, session_id: &str) -> u64 {
-        self.key.hash(session_id)
-    }
-
-    /// Whether a session with this id is stored.
-    pub fn contains(&self, session_id: &str) -> bool {
-        self.contains_hash(self.hash(session_id))
-    }
-
-    pub(super) fn contains_hash(&self, hash: u64) -> bool {
-        self.hashes
-            .read()
-            .unwrap_or_else(|p| p.into_inner())
-            .contains(&hash)
-    }
-
-    /// Stored sessions (distinct id hashes).
-    pub fn len(&self) -> usize {
-        self.hashes.read().unwrap_or_else(|p| p.into_inner()).len()
-    }
-
-    /// Whether nothing is stored.
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
-
-    fn insert(&self, hashes: impl IntoIterator<Item = u64>) {
-        self.hashes
-            .write()
-            .unwrap_or_else(|p| p.into_inner())
-            .extend(hashes);
     }
 }
 

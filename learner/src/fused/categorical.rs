@@ -9,8 +9,7 @@
 
 use jsae_nn::host::math;
 
-use super::loss::surrogate;
-use super::{HostMinibatch, LossConfig};
+use super::{HostMinibatch, LossConfig, surrogate};
 
 /// Logits per part below which the rows are not split between threads.
 const SPLIT: usize = 32 * 1024;

@@ -6,27 +6,9 @@
 use jsae_nn::host::math;
 use jsae_nn::{HostInput, HostMlp, InputWeights, MlpWork, OutputBias};
 
-use super::{FusedWork, HostMinibatch, HostPolicy, LOG_RATIO_MAX, LossConfig, LossParts};
+use super::{FusedWork, HostMinibatch, HostPolicy, LossConfig, LossParts, surrogate};
 use jsae_agent::CountPrior;
 use jsae_agent::policy::{HALF_LOG_2PI, LOG_STD_MAX, LOG_STD_MIN, PolicyHead};
-
-/// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r =
-/// exp(min(log_ratio, LOG_RATIO_MAX))`, and its derivative with respect to the
-/// log-probability (a tie, or a NaN, takes the unclipped branch, as burn's `max_pair` does;
-/// beyond the hold the derivative is 0, as burn's `clamp_max` gives).
-pub(super) fn surrogate(log_ratio: f32, adv: f32, clip: f32) -> (f32, f32) {
-    let held = log_ratio > LOG_RATIO_MAX;
-    let r = if held { LOG_RATIO_MAX } else { log_ratio }.exp();
-    let unclipped = -adv * r;
-    let clipped = -adv * r.clamp(1.0 - clip, 1.0 + clip);
-    if clipped > unclipped {
-        (clipped, 0.0)
-    } else if held {
-        (unclipped, 0.0)
-    } else {
-        (unclipped, -adv * r)
-    }
-}
 
 /// What the actor's half writes: its MLP's buffers and gradients, the log-std's gradient,
 /// and the log-ratios.

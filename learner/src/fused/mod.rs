@@ -30,6 +30,24 @@ use jsae_agent::{CountPrior, Policy, PolicyHead};
 /// below it (their ratios are within a few tenths of 1).
 pub const LOG_RATIO_MAX: f32 = 20.0;
 
+/// The clipped surrogate of one sample, `max(-A r, -A clip(r))` with `r =
+/// exp(min(log_ratio, LOG_RATIO_MAX))`, and its derivative with respect to the
+/// log-probability (a tie, or a NaN, takes the unclipped branch, as burn's `max_pair` does;
+/// beyond the hold the derivative is 0, as burn's `clamp_max` gives).
+pub(super) fn surrogate(log_ratio: f32, adv: f32, clip: f32) -> (f32, f32) {
+    let held = log_ratio > LOG_RATIO_MAX;
+    let r = if held { LOG_RATIO_MAX } else { log_ratio }.exp();
+    let unclipped = -adv * r;
+    let clipped = -adv * r.clamp(1.0 - clip, 1.0 + clip);
+    if clipped > unclipped {
+        (clipped, 0.0)
+    } else if held {
+        (unclipped, 0.0)
+    } else {
+        (unclipped, -adv * r)
+    }
+}
+
 /// The policy's trainable parameters on the host (and, for gradients, their layout).
 #[derive(Debug, Clone, PartialEq)]
 pub struct HostParams {

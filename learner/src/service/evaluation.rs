@@ -13,7 +13,7 @@ use jsae_wire::RpcError;
 use jsae_wire::pb;
 use tokio::sync::mpsc;
 
-use super::grpc::{Announced, Input};
+use super::input::{Announced, Input};
 use super::roster::Roster;
 
 /// The open evaluation request and the actors that could take it over.

@@ -14,14 +14,13 @@ use std::time::Duration;
 use jsae_net as net;
 use jsae_net::streams::StreamLimit;
 use jsae_wire::{self as wire, pb};
-use jsae_wire::{
-    EmbeddingSnapshot, EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError,
-};
+use jsae_wire::{EvalReport, FragmentBounds, PolicySnapshot, RolloutFragment, RpcError};
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
 use super::evaluation::{ActorIds, OpenStream};
+use super::input::{Announced, Input};
 
 /// Largest fragment accepted, in steps.
 pub const MAX_FRAGMENT_STEPS: usize = 65_536;
@@ -30,33 +29,6 @@ pub const MAX_FRAGMENT_STEPS: usize = 65_536;
 /// embedder's stream to bring it (an actor may hear of a new version a moment before the
 /// learner does), before it is refused as unknown.
 pub const EMBEDDING_GRACE: Duration = Duration::from_secs(2);
-
-/// What the learner thread is told.
-#[derive(Debug)]
-pub(super) enum Input {
-    /// A checked fragment.
-    Fragment(Box<RolloutFragment>),
-    /// A new embedding version (JSAE).
-    Embedding(EmbeddingSnapshot),
-    /// An evaluation report and the request it answers.
-    Eval(EvalReport, u64),
-    /// An actor's policy stream opened (with what it announced) or closed (None).
-    Stream {
-        actor: u64,
-        opened: Option<Announced>,
-    },
-    /// Time passes: an overdue round is closed (sent by a timer while the service runs).
-    Tick,
-}
-
-/// What an actor says of itself when it opens its policy stream (`WatchRequest`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub(super) struct Announced {
-    /// The env steps one rollout of all its environments delivers (0: it did not say).
-    pub(super) rollout_steps: u64,
-    /// Its environments (0: it did not say, and steps all of them whatever its share).
-    pub(super) envs: u32,
-}
 
 /// How long a new actor's stream waits for its share of a shared batch before the first
 /// snapshot goes out (else its first rollout steps all of its environments).

@@ -20,6 +20,7 @@
 
 mod evaluation;
 mod grpc;
+mod input;
 mod roster;
 mod training;
 
@@ -41,8 +42,9 @@ use tokio::sync::{mpsc, watch};
 
 use crate::lifecycle::LearnerRun;
 use crate::{Learner, LoggedPurchases};
-use grpc::{Input, PolicyState};
+use grpc::PolicyState;
 pub use grpc::{LearnerService, MAX_FRAGMENT_STEPS};
+use input::Input;
 use jsae_run_dir::{Resume, Summary};
 
 /// Messages queued between the service and the learner thread.

@@ -16,7 +16,8 @@ use jsae_wire::{EmbeddingSnapshot, EvalReport, PolicySnapshot};
 use tokio::sync::{mpsc, watch};
 
 use super::evaluation::Evaluation;
-use super::grpc::{Input, PolicyState};
+use super::grpc::PolicyState;
+use super::input::Input;
 use super::roster::Roster;
 use crate::lifecycle::LearnerRun;
 use crate::{Ingested, LoggedPurchases, UpdateReport};
