@@ -70,9 +70,11 @@ impl EmbedderRun {
                     first = Some(saved);
                 }
                 Err(e) if resume == Resume::Required => return Err(format!("--resume: {e}")),
-                Err(e) => note(format!(
-                    "the embedding checkpoint does not fit this model ({e}); starting afresh"
-                )),
+                Err(e) => tracing::error!(
+                    "the embedding checkpoint in {} does not fit this model ({e}); starting \
+                     afresh",
+                    checkpoints.map_or_else(String::new, |d| d.display().to_string())
+                ),
             },
         }
         let run = Self {
@@ -119,8 +121,10 @@ impl EmbedderRun {
         let Some(dir) = &self.checkpoints else {
             return Ok(());
         };
+        // both written whatever the other did (the latest one is what a restart reads)
         let ckpt = Checkpoints::new(dir);
-        ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes)?;
-        ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes)
+        let versioned = ckpt.write_versioned(Weights::Embedding, snap.version, &snap.bytes);
+        let latest = ckpt.write_latest(Weights::Embedding, snap.version, &snap.bytes);
+        versioned.and(latest)
     }
 }

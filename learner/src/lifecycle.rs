@@ -151,10 +151,15 @@ impl LearnerRun {
     /// # Errors
     /// When it cannot be written.
     pub fn checkpoint(&self, snapshot: &PolicySnapshot) -> anyhow::Result<()> {
+        self.checkpoint_at(snapshot, self.wall_seconds())
+    }
+
+    /// [`Self::checkpoint`] with the training state at `wall` seconds.
+    fn checkpoint_at(&self, snapshot: &PolicySnapshot, wall: f64) -> anyhow::Result<()> {
         let saved = LatestCheckpoint {
             version: snapshot.version,
             weights: snapshot.bytes.clone(),
-            state: self.learner.training_state(self.wall_seconds())?,
+            state: self.learner.training_state(wall)?,
         };
         self.dir
             .checkpoints()
@@ -172,9 +177,10 @@ impl LearnerRun {
         report: &UpdateReport,
         embedding: Option<&EmbeddingSnapshot>,
     ) -> anyhow::Result<()> {
+        // one wall time for both, so that a resume counts on from the row's
         let wall = self.wall_seconds();
         let row = update_scalars(&report.metrics, wall, embedding);
-        self.checkpoint(&report.snapshot)?;
+        self.checkpoint_at(&report.snapshot, wall)?;
         self.metrics
             .record(&row)
             .with_context(|| self.dir.metrics_csv().display().to_string())
