@@ -28,8 +28,9 @@
 # images are never resolved on a registry (--resolve-image never, and
 # DOCKER_SERVICE_PREFER_OFFLINE_IMAGE=1 in the daemons' environment).
 # PROFILE=dev uses the binaries the test suite built (CI); release by default.
-# JSAE_ENV_STEPS sets the run's length (default 1,000,000: long enough that the cut and the
-# restart fall mid-run).
+# JSAE_ENV_STEPS sets the run's length (default 2,000,000: long enough that the cut and the
+# restart fall mid-run, also on a loaded machine, where swarm took 45 s to mark a cut node
+# Down and 1,000,000 steps ran out first).
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 skip() { echo "swarm-test: SKIPPED: $*"; exit 0; }
@@ -54,7 +55,7 @@ bindir="${CARGO_TARGET_DIR:-$root/target}/$([[ $profile == release ]] && echo re
 image="jsae:latest"
 stack=jsae
 export JSAE_IMAGE="$image" JSAE_ENV=gridworld-discrete JSAE_ALGO=jsae JSAE_SEED=1
-export JSAE_ENV_STEPS="${JSAE_ENV_STEPS:-1000000}" JSAE_RUN=gridworld
+export JSAE_ENV_STEPS="${JSAE_ENV_STEPS:-2000000}" JSAE_RUN=gridworld
 export JSAE_RECOMMENDER_RUN=recommender JSAE_ACTORS=3 RUST_LOG=info
 export JSAE_CONFIG_NAME=jsae_config JSAE_AUTH_SECRET=jsae_auth_token JSAE_RECOMMENDER_REPLICAS=1
 export JSAE_EMBEDDER_PORT=50051 JSAE_LEARNER_PORT=50052 JSAE_RECOMMENDER_PORT=50060
