@@ -94,7 +94,7 @@ impl LearnerRun {
             fresh = false;
         }
         if !resumed {
-            jsae_run_dir::write_atomic(&dir.config_toml(), config.to_toml().as_bytes())
+            dir.write_config(config)
                 .with_context(|| dir.config_toml().display().to_string())?;
         }
         // rows of updates past the checkpoint's (a forged row, or a row of an update whose

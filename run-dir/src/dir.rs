@@ -52,6 +52,12 @@ impl RunDir {
         self.root.join("config.toml")
     }
 
+    /// Writes `config` as the run's config.toml, atomically (a service reading it meanwhile
+    /// sees the old file or the new one, never half of one).
+    pub fn write_config(&self, config: &jsae_settings::TrainConfig) -> io::Result<()> {
+        write_atomic(&self.config_toml(), config.to_toml().as_bytes())
+    }
+
     /// One row per learner update.
     pub fn metrics_csv(&self) -> PathBuf {
         self.root.join("metrics.csv")

@@ -230,7 +230,7 @@ pub fn train_processes(
         ckpt.clear_latest();
     }
     let config_path = std::path::absolute(run.config_toml()).map_err(io(&dir))?;
-    std::fs::write(&config_path, config.to_toml()).map_err(io(&config_path))?;
+    run.write_config(config).map_err(io(&config_path))?;
     let children = Children {
         exe,
         run: &run,

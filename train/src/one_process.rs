@@ -126,7 +126,7 @@ pub fn train_one_process_with(
     let run = RunDir::new(&config.out);
     let dir = config.out.clone();
     std::fs::create_dir_all(run.checkpoints().path()).map_err(io(&dir))?;
-    std::fs::write(run.config_toml(), config.to_toml()).map_err(io(&dir))?;
+    run.write_config(config).map_err(io(&dir))?;
     let resume = match files.resume {
         true => Resume::Required,
         false => Resume::Never,

@@ -13,6 +13,8 @@ impl ActorWorker {
     pub fn collect(&mut self, rollout_steps: usize) -> Rollout {
         let k = self.active;
         let acting = self.acting();
+        let record_transitions =
+            self.recording || self.config.algo.representation().needs_embedder();
         let mut recorded = self.recording.then(|| RecordedSteps {
             policy_version: if acting {
                 self.weights.policy_version().unwrap_or(0)
@@ -62,6 +64,7 @@ impl ActorWorker {
             b.after.clear();
             step_all(&mut self.envs[..k], &b.env_actions, &mut b.steps, threads);
             let mut out = StepOutputs {
+                record_transitions,
                 transitions: &mut transitions,
                 fragments: &mut fragments,
                 recorded: recorded.as_mut(),
@@ -166,7 +169,7 @@ impl ActorWorker {
             self.envs[i].reset(&mut self.env_rngs[i]);
         }
         self.envs[i].push_state(&mut b.after);
-        if self.recording || self.config.algo.representation().needs_embedder() {
+        if out.record_transitions {
             let t = &mut *out.transitions;
             t.states.push_row_of(&self.current, i);
             t.actions.push_row_of(&b.env_actions, i);
@@ -228,6 +231,8 @@ impl StepBuffers {
 
 /// Where a rollout's steps go.
 struct StepOutputs<'a> {
+    /// Whether the transitions are kept (for the embedder or the recording).
+    record_transitions: bool,
     transitions: &'a mut TransitionBatch,
     fragments: &'a mut [RolloutFragment],
     recorded: Option<&'a mut RecordedSteps>,
