@@ -389,6 +389,7 @@ async fn a_restarted_embedder_continues_its_version_line() {
         pretrain_from: None,
         metrics: Default::default(),
         security: Default::default(),
+        logged: None,
     };
     let first = start_embedder_with(&c, options.clone()).await;
     pretrain_to_version_one(&first.url).await;

@@ -109,7 +109,9 @@ pub enum Command {
 /// Runs a `jsae` subcommand.
 pub fn run(command: Command) -> ExitCode {
     match command {
-        Command::Embedder(args) => return jsae_embedder::service::main(args),
+        Command::Embedder(args) => {
+            return jsae_embedder::service::main(args, jsae_train::logs::logged_items);
+        }
         Command::Learner(args) => {
             return jsae_learner::service::main(args, jsae_train::logs::logged_purchases);
         }

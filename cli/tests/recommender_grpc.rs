@@ -32,6 +32,11 @@ sessions = 2000
 [embedding]
 pretrain_transitions = 2048
 pretrain_epochs = 2
+state_dim = 16
+action_dim = 16
+[embedding.recommender]
+pair_buckets = 4096
+logged_pretrain_epochs = 1
 [ppo]
 epochs = 2
 "#;

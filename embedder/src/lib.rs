@@ -34,4 +34,4 @@ pub use pretrain_progress::{PRETRAIN_PHASE, PretrainProgress};
 pub use recorded::{RecordedPretraining, pretrain_from_recording};
 pub use representation::RepresentationModel;
 pub use structure::ActionStructure;
-pub use trainer::{EmbedderStats, EmbedderTrainer};
+pub use trainer::{EmbedderStats, EmbedderTrainer, LoggedItems, LoggedReport};

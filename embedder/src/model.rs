@@ -34,6 +34,10 @@ pub trait EmbeddingTraining {
     /// `[batch, d]`.
     fn infer_action_embeddings(&self, states: &StateBatch, next: &StateBatch) -> Tensor<2>;
 
+    /// The next-item loss alone: the mean cross-entropy of the item bought after each of
+    /// `states` (`items[i]` after row `i`) under the next-item head (None without it).
+    fn next_item_loss(&self, states: &StateBatch, items: &[u32]) -> Option<Tensor<1>>;
+
     /// Copies every part of `source` whose shape matches this model's (both of the same
     /// representation); returns the names of the parts copied.
     fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str>;
@@ -78,8 +82,13 @@ impl EmbeddingTraining for EmbeddingModel {
         }
         let x = self.embed_states(states);
         let e = self.embed_actions(actions);
-        let out = self.predict_next(x, e.clone());
-        let model_loss = state_loss(self, out, next_states);
+        let out = self.predict_next(x.clone(), e.clone());
+        let mut model_loss = state_loss(self, out, next_states);
+        let coef = self.config().recommender.next_item_coef;
+        if let (Some(logits), Some(items)) = (self.next_item_logits(x), last_factor(next_states)) {
+            let target = index_column(self, items.into_iter().map(i64::from).collect());
+            model_loss = model_loss + cross_entropy(logits, target) * coef as f32;
+        }
         let decoder_loss = match (actions, self.decode(e.detach())) {
             (ActionBatch::Continuous { .. }, Some(pred)) => action_mse(self, pred, actions),
             _ => Tensor::zeros([1], self.device()),
@@ -89,6 +98,12 @@ impl EmbeddingTraining for EmbeddingModel {
 
     fn infer_action_embeddings(&self, states: &StateBatch, next: &StateBatch) -> Tensor<2> {
         baselines::infer_action_embeddings(self, states, next)
+    }
+
+    fn next_item_loss(&self, states: &StateBatch, items: &[u32]) -> Option<Tensor<1>> {
+        let logits = self.next_item_logits(self.embed_states(states))?;
+        let target = index_column(self, items.iter().map(|&i| i64::from(i)).collect());
+        Some(cross_entropy(logits, target))
     }
 
     fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str> {
@@ -148,6 +163,21 @@ fn state_loss(model: &EmbeddingModel, out: Tensor<2>, target: &StateBatch) -> Te
             (out - target).square().mean()
         }
         _ => unreachable_state(),
+    }
+}
+
+/// The last factor of every categorical state (the recommender's item bought last; None for
+/// real states).
+fn last_factor(states: &StateBatch) -> Option<Vec<u32>> {
+    match states {
+        StateBatch::Categorical { factors, data } if *factors > 0 => Some(
+            data.iter()
+                .skip(factors - 1)
+                .step_by(*factors)
+                .copied()
+                .collect(),
+        ),
+        _ => None,
     }
 }
 

@@ -27,6 +27,18 @@ pub trait RepresentationModel: std::fmt::Debug + Send {
     /// loss) before the step (JSAE: `-log P(s'|s,a)` and f's; AE: the state and the action
     /// reconstruction; RA: `-log f(a | e(s, s'))` and 0).
     fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32);
+    /// One optimiser step on the next-item loss alone (logged purchases: `items[i]` bought
+    /// after row `i` of `states`); the loss before the step, None for a model without the
+    /// next-item head (nothing trained).
+    fn train_next_item_step(
+        &mut self,
+        _optim: &mut ModuleOptimizer,
+        _states: &StateBatch,
+        _items: &[u32],
+        _lr: f64,
+    ) -> Option<f32> {
+        None
+    }
     /// (model loss, decoder loss) on a minibatch, without training.
     fn evaluate(&self, mb: &Minibatch) -> (f32, f32);
     /// The weights, as inference-side snapshot bytes.
@@ -62,6 +74,20 @@ impl RepresentationModel for EmbeddingModel {
             model_loss.into_scalar::<f32>(),
             decoder_loss.into_scalar::<f32>(),
         )
+    }
+
+    fn train_next_item_step(
+        &mut self,
+        optim: &mut ModuleOptimizer,
+        states: &StateBatch,
+        items: &[u32],
+        lr: f64,
+    ) -> Option<f32> {
+        let loss = self.next_item_loss(states, items)?;
+        let grads = GradientsParams::from_grads(loss.backward(), self.net());
+        let net = optim.step(lr, self.net().clone(), grads);
+        self.set_net(net);
+        Some(loss.into_scalar::<f32>())
     }
 
     fn evaluate(&self, mb: &Minibatch) -> (f32, f32) {

@@ -25,8 +25,8 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tonic::{Request, Response, Status, Streaming};
 
-use crate::EmbedderTrainer;
 use crate::lifecycle::EmbedderRun;
+use crate::{EmbedderTrainer, LoggedItems};
 
 /// Transition batches queued between the service and the training thread: few, so that
 /// backpressure reaches the actors while a training round runs.
@@ -138,6 +138,9 @@ pub struct EmbedderOptions {
     /// A recording (MCAP) to pre-train on at start instead of waiting for random play; not
     /// read when a checkpoint is resumed.
     pub pretrain_from: Option<PathBuf>,
+    /// The logged purchases a fresh embedding pre-trains on first, where the settings ask
+    /// (`embedding.recommender.logged_pretrain_epochs`).
+    pub logged: Option<Arc<LoggedItems>>,
     /// The Prometheus families the training thread updates.
     pub metrics: EmbedderMetrics,
     /// TLS and the token every RPC but health needs.
@@ -153,7 +156,18 @@ fn training_loop(
     publish: &watch::Sender<Option<Arc<EmbeddingSnapshot>>>,
     options: &EmbedderOptions,
 ) -> Result<(), String> {
-    let trainer = EmbedderTrainer::for_run(config, states, actions);
+    let mut trainer = EmbedderTrainer::for_run(config, states, actions);
+    match &options.logged {
+        Some(logged) => trainer.set_logged(logged.clone())?,
+        None if config.embedding.recommender.logged_pretrain_epochs > 0 => {
+            return Err(
+                "embedding.recommender.logged_pretrain_epochs asks for the logged purchases and \
+                 none were given (`jsae embedder` reads the recommender's)"
+                    .into(),
+            );
+        }
+        None => {}
+    }
     let (mut run, first) = EmbedderRun::open(
         config,
         trainer,
@@ -323,9 +337,13 @@ pub struct EmbedderArgs {
     pub security: SecurityFlags,
 }
 
+/// Reads a run's logged purchases where its settings ask for them (None where they do not);
+/// the reason when they cannot be read. The embedder knows no data set: its caller does.
+pub type LogsSource = fn(&TrainConfig) -> Result<Option<LoggedItems>, String>;
+
 /// Runs the embedder process: exit 0 after SIGINT/SIGTERM and a final checkpoint, 2 for a bad
 /// configuration, 1 when serving fails.
-pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
+pub fn main(args: EmbedderArgs, logs: LogsSource) -> std::process::ExitCode {
     let config = args
         .run
         .for_service()
@@ -342,17 +360,19 @@ pub fn main(args: EmbedderArgs) -> std::process::ExitCode {
             if let Some(dir) = &args.checkpoint_dir {
                 Checkpoints::new(dir).refuse_unreadable(Weights::Embedding)?;
             }
-            Ok((c, args.security.load()?))
+            let logged = logs(&c)?.map(Arc::new);
+            Ok((c, args.security.load()?, logged))
         });
     let mut registry = MetricsRegistry::default();
     let metrics = EmbedderMetrics::register(&mut registry);
     net::service_main(
         "jsae-embedder",
         config,
-        |(config, security), shutdown| async move {
+        |(config, security, logged), shutdown| async move {
             let options = EmbedderOptions {
                 checkpoint_dir: args.checkpoint_dir,
                 pretrain_from: args.pretrain_from,
+                logged,
                 metrics,
                 security,
             };

@@ -12,6 +12,10 @@ use rand::SeedableRng;
 use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
+mod logged;
+
+pub use logged::{LoggedItems, LoggedReport};
+
 use crate::pretrain_progress::{PretrainObserver, PretrainProgress};
 use crate::replay::Replay;
 use crate::representation::RepresentationModel;
@@ -54,6 +58,8 @@ pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
     stats: EmbedderStats,
     structure: Option<ActionStructure>,
     pretrain_observer: Option<PretrainObserver>,
+    /// Logged purchases for the pre-training's first passes ([`logged`]).
+    logged: Option<std::sync::Arc<LoggedItems>>,
 }
 
 /// The optimiser (burn's has no `Debug`).
@@ -154,6 +160,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             stats: EmbedderStats::default(),
             structure: None,
             pretrain_observer: None,
+            logged: None,
         }
     }
 
@@ -197,6 +204,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             self.model.action_space(),
             f32::MAX,
         )?;
+        self.check_next_items(batch)?;
         self.model.observe_states(&batch.states);
         self.replay.push(batch);
         self.since_update += batch.len();
@@ -278,6 +286,7 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
 
     /// Pre-training: `pretrain_epochs` passes of shuffled minibatches over the buffer.
     fn pretrain(&mut self) {
+        self.pretrain_on_logs();
         let n = self.replay.len();
         let mut order: Vec<usize> = (0..n).collect();
         let bs = self.config.batch_size.min(n);

@@ -29,6 +29,11 @@ pub struct MlpConfig {
     /// starts as the network of the first `input` alone, initialised as that one would be.
     #[serde(default)]
     pub zero_inputs: usize,
+    /// With `skip`: the skip path starts as the identity from the `output` input columns from
+    /// this one to the outputs (instead of zero), so the network starts by passing that part
+    /// of its input through (plus the layers' small output).
+    #[serde(default)]
+    pub skip_identity: Option<usize>,
 }
 
 impl MlpConfig {
@@ -57,8 +62,13 @@ impl MlpConfig {
             *first = crate::linear_from_host(w, Some(vec![0.0; out]), inputs, out, device);
         }
         let skip = self.skip.then(|| {
-            let zeros = vec![0.0; inputs * self.output];
-            crate::linear_from_host(zeros, None, inputs, self.output, device)
+            let mut w = vec![0.0; inputs * self.output];
+            if let Some(start) = self.skip_identity {
+                for j in (0..self.output).filter(|j| start + j < inputs) {
+                    w[(start + j) * self.output + j] = 1.0;
+                }
+            }
+            crate::linear_from_host(w, None, inputs, self.output, device)
         });
         Mlp {
             layers,

@@ -28,6 +28,9 @@ pub struct RankingMetrics {
     pub hit_rate: f64,
     /// Mean NDCG@k.
     pub ndcg: f64,
+    /// Mean reciprocal rank@k: `1 / rank` of the purchased item where it is among the `k`,
+    /// else 0.
+    pub mrr: f64,
     /// Catalogue coverage@k: the share of catalogue items in at least one query's `k` (1 for
     /// random recommendations over enough queries; a policy that ignores the state: k/n).
     pub coverage: f64,
@@ -73,7 +76,7 @@ pub fn queries(rec: &Recommender, model: &NgramModel, sessions: &[Session]) -> Q
     out
 }
 
-/// Hit rate@k and NDCG@k of the policy `rec` serves over `queries`.
+/// Hit rate@k, NDCG@k and MRR@k of the policy `rec` serves over `queries`.
 pub fn score(
     rec: &Recommender,
     model: &NgramModel,
@@ -81,7 +84,7 @@ pub fn score(
     k: usize,
     name: &str,
 ) -> Result<RankingMetrics, jsae_wire::RpcError> {
-    let (mut hits, mut gain) = (0usize, 0.0);
+    let (mut hits, mut gain, mut reciprocal) = (0usize, 0.0, 0.0);
     let mut shown = vec![false; model.catalogue().len()];
     for (state, target) in &queries.pairs {
         let ranking = rec.rank(model, state, k)?;
@@ -93,6 +96,7 @@ pub fn score(
         if let Some(i) = ranking.items.iter().position(|(a, _)| a == target) {
             hits += 1;
             gain += 1.0 / ((i + 2) as f64).log2();
+            reciprocal += 1.0 / (i + 1) as f64;
         }
     }
     let n = queries.queries.max(1) as f64;
@@ -100,11 +104,12 @@ pub fn score(
         policy: name.to_owned(),
         hit_rate: hits as f64 / n,
         ndcg: gain / n,
+        mrr: reciprocal / n,
         coverage: shown.iter().filter(|&&s| s).count() as f64 / shown.len().max(1) as f64,
     })
 }
 
-/// The expected hit rate@k and NDCG@k of `k` distinct items drawn uniformly from `items`.
+/// The expected hit rate@k, NDCG@k and MRR@k of `k` distinct items drawn uniformly from `items`.
 pub fn random_expectation(items: usize, k: usize) -> RankingMetrics {
     let k = k.min(items);
     let per_rank = 1.0 / items.max(1) as f64;
@@ -112,6 +117,7 @@ pub fn random_expectation(items: usize, k: usize) -> RankingMetrics {
         policy: "random".into(),
         hit_rate: k as f64 * per_rank,
         ndcg: (0..k).map(|i| per_rank / ((i + 2) as f64).log2()).sum(),
+        mrr: (0..k).map(|i| per_rank / (i + 1) as f64).sum(),
         coverage: 1.0,
     }
 }
@@ -151,6 +157,8 @@ mod tests {
                 m.ndcg > 0.0 && m.ndcg < m.hit_rate && m.hit_rate <= 1.0,
                 "{m:?}"
             );
+            // a hit at rank 1 counts 1 in both, lower ones less in MRR than in NDCG
+            assert!(m.mrr > 0.0 && m.mrr <= m.ndcg, "{m:?}");
         }
         let items = model.catalogue().len() as f64;
         assert!(
@@ -170,6 +178,8 @@ mod tests {
         // every rank equally likely: the mean of the discounts over the first k ranks, times k/n
         let mean: f64 = (0..10).map(|i| 1.0 / ((i + 2) as f64).log2()).sum::<f64>() / 10.0;
         assert!((r.ndcg - 0.1 * mean).abs() < 1e-12);
+        let harmonic: f64 = (1..=10).map(|i| 1.0 / f64::from(i)).sum();
+        assert!((r.mrr - 0.01 * harmonic).abs() < 1e-12);
         assert_eq!(random_expectation(5, 10).hit_rate, 1.0);
     }
 }

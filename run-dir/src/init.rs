@@ -53,12 +53,20 @@ pub fn init_source(run: &TrainConfig) -> Result<Option<InitSource>, ConfigError>
             ),
         ));
     }
-    let widths = |c: &TrainConfig| (c.embedding.state_dim, c.embedding.action_dim);
+    let widths = |c: &TrainConfig| {
+        (
+            c.embedding.state_dim,
+            c.embedding.action_dim,
+            c.embedding.policy_input_dim(),
+            c.ppo.recommender.mean_at_next_item,
+        )
+    };
     if widths(&config) != widths(run) {
         return Err(invalid(
             path,
             format!(
-                "embedding widths (state_dim, action_dim) {:?}; run run's are {:?}",
+                "embedding widths (state_dim, action_dim, the policy's input, \
+                 ppo.recommender.mean_at_next_item) {:?}; this run's are {:?}",
                 widths(&config),
                 widths(run)
             ),

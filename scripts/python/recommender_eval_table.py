@@ -47,8 +47,8 @@ def main():
     k = a.k
     print(f"held-out sessions {meta['sessions']}, queries {meta['queries']} "
           f"(purchases outside the catalogue: {meta['outside_catalogue']}), k = {k}\n")
-    print(f"| policy | runs | HR@{k} | NDCG@{k} | coverage@{k} | simulated return |")
-    print("|---|---|---|---|---|---|")
+    print(f"| policy | runs | HR@{k} | NDCG@{k} | MRR@{k} | coverage@{k} | simulated return |")
+    print("|---|---|---|---|---|---|---|")
     order = sorted(rows, key=lambda n: (not n.endswith("(learned)"), n))
     for name in order:
         v = rows[name]
@@ -60,7 +60,7 @@ def main():
                 return f"{m:.{digits}f}"
             return f"{m:.{digits}f} [{min(xs):.{digits}f}, {max(xs):.{digits}f}]"
         print(f"| {name} | {len(v)} | {cell('hit_rate', 3)} | {cell('ndcg', 3)} | "
-              f"{cell('coverage', 3)} | {cell('return_mean', 2)} |")
+              f"{cell('mrr', 3)} | {cell('coverage', 3)} | {cell('return_mean', 2)} |")
 
 
 if __name__ == "__main__":

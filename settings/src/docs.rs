@@ -8,11 +8,12 @@ use std::fmt::Write as _;
 use crate::TrainConfig;
 
 /// The sources of every struct a run's settings are made of.
-const SOURCES: [&str; 5] = [
+const SOURCES: [&str; 6] = [
     include_str!("run.rs"),
     include_str!("ppo.rs"),
     include_str!("ppo_recommender.rs"),
     include_str!("embedding.rs"),
+    include_str!("embedding_recommender.rs"),
     jsae_env_spec::SOURCE,
 ];
 

@@ -4,6 +4,8 @@ use serde::{Deserialize, Serialize};
 
 use jsae_spaces::ActionSpace;
 
+use super::embedding_recommender::RecommenderEmbeddingConfig;
+
 /// Embedding model and trainer settings (paper section 4.3 and appendix; public reference
 /// code for the rest). The defaults are the gridworld's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -58,6 +60,8 @@ pub struct EmbeddingConfig {
     /// updates and its evaluation use one embedding (None, the default: never;
     /// docs/src/experiments/greedy-loops.md has what it changed on the gridworld).
     pub hold_from: Option<f64>,
+    /// The recommender's item-structure settings (`[embedding.recommender]`).
+    pub recommender: RecommenderEmbeddingConfig,
 }
 
 impl Default for EmbeddingConfig {
@@ -80,6 +84,7 @@ impl Default for EmbeddingConfig {
             update_lr: 0.003,
             normalize_states: false,
             hold_from: None,
+            recommender: RecommenderEmbeddingConfig::default(),
         }
     }
 }
@@ -94,8 +99,20 @@ impl EmbeddingConfig {
         self.pretrain_transitions.max(per_action)
     }
 
+    /// Width of the policy's input: `x = phi(s)`, followed by the next-item head's output
+    /// where the model has one (`embedding.recommender.next_item_coef`).
+    pub fn policy_input_dim(&self) -> usize {
+        self.state_dim
+            + if self.recommender.next_item() {
+                self.action_dim
+            } else {
+                0
+            }
+    }
+
     /// Checks the settings; the reason names the bad key.
     pub fn validate(&self) -> Result<(), String> {
+        self.recommender.validate(self.state_dim)?;
         if let Some(share) = self.hold_from
             && !(share > 0.0 && share <= 1.0)
         {

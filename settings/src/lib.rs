@@ -12,6 +12,7 @@ mod batch;
 mod config_file;
 mod docs;
 mod embedding;
+mod embedding_recommender;
 mod file_errors;
 mod flags;
 mod ppo;
@@ -23,6 +24,7 @@ pub use algo::{Algo, Representation};
 pub use batch::share_envs;
 pub use config_file::ConfigFile;
 pub use embedding::EmbeddingConfig;
+pub use embedding_recommender::RecommenderEmbeddingConfig;
 pub use flags::{
     EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
 };

@@ -47,6 +47,12 @@ pub struct RecommenderPpoConfig {
     /// Buckets per pair (1 or more): with two, a pair's feature is the sum of two rows, which
     /// two pairs share only if both of their buckets collide.
     pub pair_hashes: usize,
+    /// JSAE with the embedder's next-item head (`embedding.recommender.next_item_coef`): the
+    /// Gaussian's mean starts at the item the head finds most likely next. A linear path
+    /// from the head's part of the policy's input to the mean starts at the identity (the
+    /// rest of the actor adds to it from near zero) and is trained with the rest: a warm
+    /// start that PPO may move away from, not a fixed prior.
+    pub mean_at_next_item: bool,
 }
 
 impl Default for RecommenderPpoConfig {
@@ -59,6 +65,7 @@ impl Default for RecommenderPpoConfig {
             pair_buckets: 0,
             pair_scale: 1.0,
             pair_hashes: 1,
+            mean_at_next_item: false,
         }
     }
 }

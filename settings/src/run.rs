@@ -294,6 +294,9 @@ impl TrainConfig {
             self.ppo.gamma = 0.0;
             self.ppo.lr = 1e-5;
         }
+        if self.algo == Algo::Jsae {
+            crate::embedding_recommender::jsae_recommender_defaults(self);
+        }
     }
 
     /// HalfCheetah's and Ant's.
@@ -402,8 +405,10 @@ impl TrainConfig {
             parsed.environment,
             (path, text, "environment"),
         )?;
-        c.embedding = overlay(&c.embedding, parsed.embedding, (path, text, "embedding"))?;
-        let ppo = parsed.ppo.map(crate::ppo_recommender::nest_legacy_keys);
+        let mut ppo = parsed.ppo.map(crate::ppo_recommender::nest_legacy_keys);
+        let mut embedding = parsed.embedding;
+        crate::embedding_recommender::items_off_in_older_dumps(&mut embedding, &mut ppo);
+        c.embedding = overlay(&c.embedding, embedding, (path, text, "embedding"))?;
         c.ppo = overlay(&c.ppo, ppo, (path, text, "ppo"))?;
         c.exploration = overlay(
             &c.exploration,
@@ -486,6 +491,7 @@ impl TrainConfig {
                 ));
             }
         }
+        crate::embedding_recommender::validate_for_run(self).map_err(ConfigError::Invalid)?;
         if self.algo.representation().needs_embedder() {
             self.embedding.validate().map_err(ConfigError::Invalid)?;
             let budget = self.pretrain_budget();

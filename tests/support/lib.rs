@@ -54,6 +54,13 @@ pub fn small_config(env: EnvName, algo: Algo, seed: u64, out: PathBuf) -> TrainC
     c.ppo.epochs = 2;
     // one pass over the recommender's logged purchases where the defaults pre-train
     c.ppo.recommender.logged_pretrain_epochs = c.ppo.recommender.logged_pretrain_epochs.min(1);
+    let items = &mut c.embedding.recommender;
+    items.logged_pretrain_epochs = items.logged_pretrain_epochs.min(1);
+    if items.pair_buckets > 0 {
+        // the recommender's JSAE: its structure, smaller
+        items.pair_buckets = 4_096;
+        (c.embedding.state_dim, c.embedding.action_dim) = (16, 16);
+    }
     c.out = out;
     c
 }

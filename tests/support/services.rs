@@ -72,7 +72,13 @@ pub async fn bind_for(security: &Security) -> (TcpListener, String) {
 }
 
 pub async fn start_embedder(config: &TrainConfig) -> Service<()> {
-    start_embedder_with(config, EmbedderOptions::default()).await
+    // the logged purchases, where the settings ask, as `jsae embedder` reads them
+    let logged = jsae_train::logs::logged_items(config).expect("logs read");
+    let options = EmbedderOptions {
+        logged: logged.map(std::sync::Arc::new),
+        ..EmbedderOptions::default()
+    };
+    start_embedder_with(config, options).await
 }
 
 pub async fn start_embedder_with(config: &TrainConfig, options: EmbedderOptions) -> Service<()> {

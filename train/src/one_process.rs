@@ -226,6 +226,11 @@ impl Lockstep {
                 lockstep.actors[0].action_space().clone(),
             );
             let mut trainer = EmbedderTrainer::for_run(config, &states, &actions);
+            if let Some(logged) = crate::logs::logged_items(config).map_err(TrainError::Service)? {
+                trainer
+                    .set_logged(std::sync::Arc::new(logged))
+                    .map_err(TrainError::Embedder)?;
+            }
             let phases = progress.phases();
             trainer.observe_pretraining(move |p| phases.report(None, &p.to_string()));
             let (opened, first) = EmbedderRun::open(

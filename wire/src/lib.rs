@@ -31,4 +31,6 @@ pub use messages::{
 };
 pub use random_id::random_id;
 pub use status::{RpcError, TooLargeIsExhausted, receive_error};
-pub use validate::{FragmentBounds, MAX_ABS_POLICY_INPUT, ValidationError, check_episodes};
+pub use validate::{
+    FragmentBounds, MAX_ABS_POLICY_INPUT, ValidationError, check_episodes, validate_states,
+};

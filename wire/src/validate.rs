@@ -190,6 +190,11 @@ fn check_actions(
     }
 }
 
+/// Checks a batch of states alone (shape, ranges, finite values) against `space`.
+pub fn validate_states(batch: &StateBatch, space: &StateSpace) -> Result<(), ValidationError> {
+    check_states("states", batch, space, batch.len())
+}
+
 impl TransitionBatch {
     /// Checks dimensions, ranges and finiteness against the environment's spaces, real
     /// states within [`MAX_ABS_POLICY_INPUT`] and rewards within `max_abs_reward`

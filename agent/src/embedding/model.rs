@@ -25,6 +25,9 @@ use jsae_settings::{EmbeddingConfig, Representation};
 pub struct EmbeddingNet {
     /// phi for categorical states: `[sum of factor sizes, m]`.
     pub phi_table: Option<Param<Tensor<2>>>,
+    /// phi's pair rows (`embedding.recommender.pair_buckets`): `[buckets, m]`, one added per
+    /// state, picked by a hash of its last two factors' columns; they start at zero.
+    pub phi_pair: Option<Param<Tensor<2>>>,
     /// phi for real states: `[dim -> m]`, no bias.
     pub phi_linear: Option<Linear>,
     /// g for discrete actions: `[n, d]`.
@@ -45,6 +48,10 @@ pub struct EmbeddingNet {
     pub inverse: Option<Mlp>,
     /// RA, discrete actions: log of the scale of f's logits `-scale * |e - z_a|^2`.
     pub inverse_log_scale: Option<Param<Tensor<1>>>,
+    /// The next-item head (`embedding.recommender.next_item_coef`): `X -> E`, `h = tanh(.)`.
+    pub next_item: Option<Linear>,
+    /// The log of the next-item logits' scale, `-scale * |h(x) - g(i)|^2`.
+    pub next_item_log_scale: Option<Param<Tensor<1>>>,
     /// Running statistics of real-valued states (`normalize_states`): phi sees normalised
     /// states and T predicts normalised next states.
     pub state_norm: Option<ObsNorm>,
@@ -118,6 +125,7 @@ fn action_parts(
                 output_gain: 1.0,
                 skip: false,
                 zero_inputs: 0,
+                skip_identity: None,
             };
             (None, g, Some(decoder.init(rng, device)))
         }
@@ -163,6 +171,7 @@ impl EmbeddingModel {
             action_parts(config, representation, actions, rng, device);
         let mut net = EmbeddingNet {
             phi_table,
+            phi_pair: None,
             phi_linear,
             g_table,
             g_linear,
@@ -173,6 +182,8 @@ impl EmbeddingModel {
             action_decoder: None,
             inverse: None,
             inverse_log_scale: None,
+            next_item: None,
+            next_item_log_scale: None,
             state_norm: match states {
                 StateSpace::Real { dim } if config.normalize_states => {
                     Some(ObsNorm::new(*dim, device))
@@ -204,6 +215,7 @@ impl EmbeddingModel {
                 inverse_heads(&mut net, config, actions, rng, device)
             }
         }
+        item_heads(&mut net, config, states, rng, device);
         let offsets = factor_offsets(states);
         Self {
             net,
@@ -284,10 +296,12 @@ impl EmbeddingModel {
                     .enumerate()
                     .map(|(i, &v)| i64::from(v + self.offsets[i % factors]))
                     .collect();
+                let pairs = self.pair_rows(&idx, *factors).map(Box::new);
                 let n = idx.len();
                 StateInput::Indices(
                     Tensor::from_data(TensorData::new(idx, [n]), &self.device),
                     *factors,
+                    pairs,
                 )
             }
             StateBatch::Real { dim, data } => StateInput::Values(self.normalised(nn::tensor2(
@@ -316,21 +330,78 @@ impl EmbeddingModel {
 
     fn phi(&self, input: StateInput) -> Tensor<2> {
         let pre = match (input, &self.net.phi_table, &self.net.phi_linear) {
-            (StateInput::Indices(idx, factors), Some(table), _) => {
+            (StateInput::Indices(idx, factors, pairs), Some(table), _) => {
                 let rows = table.val().select(0, idx); // [batch * factors, m]
                 let [n, m] = rows.dims();
-                if factors == 1 {
+                let summed = if factors == 1 {
                     rows
                 } else {
                     rows.reshape([n / factors, factors, m])
                         .sum_dim(1)
                         .reshape([n / factors, m])
+                };
+                match (pairs, &self.net.phi_pair) {
+                    (Some(pairs), Some(pair_table)) => summed + pair_table.val().select(0, *pairs),
+                    _ => summed,
                 }
             }
             (StateInput::Values(v), _, Some(linear)) => linear.forward(v),
             _ => unreachable_state(),
         };
         pre.tanh()
+    }
+
+    /// The pair row of each state (`[batch]`) from its factors' columns `idx` (offsets
+    /// added), when phi has pair rows and the states two factors or more.
+    fn pair_rows(&self, idx: &[i64], factors: usize) -> Option<Tensor<1, Int>> {
+        let table = self.net.phi_pair.as_ref()?;
+        if factors < 2 {
+            return None;
+        }
+        let buckets = table.val().dims()[0];
+        let cross = nn::PairCross {
+            buckets,
+            hashes: 1,
+            value: 1.0,
+        };
+        let rows: Vec<i64> = idx
+            .chunks_exact(factors)
+            .map(|row| {
+                let (a, b) = (row[factors - 2] as u32, row[factors - 1] as u32);
+                cross.buckets_of(a, b).next().unwrap_or(0) as i64
+            })
+            .collect();
+        let n = rows.len();
+        Some(Tensor::from_data(TensorData::new(rows, [n]), &self.device))
+    }
+
+    /// The next-item head's pre-activation `W x + b`, `[batch, d]` (None without the head).
+    pub fn next_item_pre(&self, x: Tensor<2>) -> Option<Tensor<2>> {
+        self.net.next_item.as_ref().map(|h| h.forward(x))
+    }
+
+    /// Every item's next-item logit, `-scale * |h(x) - g(i)|^2`, `[batch, n]` (None
+    /// without the head or a g-table).
+    pub fn next_item_logits(&self, x: Tensor<2>) -> Option<Tensor<2>> {
+        let h = self.next_item_pre(x)?.tanh(); // [batch, d]
+        let g = self.action_table()?; // [n, d]
+        let scale = self.net.next_item_log_scale.as_ref()?.val().exp(); // [1]
+        let [batch, _] = h.dims();
+        let n = g.dims()[0];
+        let hh = h.clone().square().sum_dim(1); // [batch, 1]
+        let gg = g.clone().square().sum_dim(1).reshape([1, n]);
+        let dist = hh - h.matmul(g.transpose()) * 2.0 + gg; // [batch, n]
+        Some(dist * scale.reshape([1, 1]).expand([batch, n]).neg())
+    }
+
+    /// The policy's input: phi, followed by the next-item head's pre-activation where the
+    /// model has one, `[batch, m (+ d)]`.
+    pub fn policy_input(&self, states: &StateBatch) -> Tensor<2> {
+        let x = self.embed_states(states);
+        match self.next_item_pre(x.clone()) {
+            Some(h) => Tensor::cat(vec![x, h], 1),
+            None => x,
+        }
     }
 
     /// g: `[batch] actions -> [batch, d]`.
@@ -364,7 +435,8 @@ impl EmbeddingModel {
 }
 
 enum StateInput {
-    Indices(Tensor<1, Int>, usize),
+    /// Every factor's column, the factors, each state's pair row (with pair rows).
+    Indices(Tensor<1, Int>, usize, Option<Box<Tensor<1, Int>>>),
     Values(Tensor<2>),
 }
 
@@ -412,10 +484,39 @@ fn inverse_heads(
         output_gain: 1.0,
         skip: false,
         zero_inputs: 0,
+        skip_identity: None,
     };
     net.inverse = Some(inverse.init(rng, device));
     if matches!(actions, ActionSpace::Discrete { .. }) {
         let log_scale = TensorData::new(vec![INITIAL_SCALE.ln()], [1]);
         net.inverse_log_scale = Some(Param::from_tensor(Tensor::from_data(log_scale, device)));
+    }
+}
+
+/// The recommender's item parts (`embedding.recommender`): phi's pair rows (zero) and the
+/// next-item head, drawn after every other part so that a seed gives the same model without
+/// them.
+fn item_heads(
+    net: &mut EmbeddingNet,
+    config: &EmbeddingConfig,
+    states: &StateSpace,
+    rng: &mut ChaCha8Rng,
+    device: &Device,
+) {
+    let items = &config.recommender;
+    if items.pair_buckets > 0 && matches!(states, StateSpace::Categorical { .. }) {
+        let zeros = vec![0.0; items.pair_buckets * config.state_dim];
+        net.phi_pair = Some(Param::from_tensor(nn::tensor2(
+            zeros,
+            items.pair_buckets,
+            config.state_dim,
+            device,
+        )));
+    }
+    if items.next_item() && net.g_table.is_some() {
+        let (m, d) = (config.state_dim, config.action_dim);
+        net.next_item = Some(uniform_linear(m, d, true, rng, device));
+        let log_scale = TensorData::new(vec![INITIAL_SCALE.ln()], [1]);
+        net.next_item_log_scale = Some(Param::from_tensor(Tensor::from_data(log_scale, device)));
     }
 }

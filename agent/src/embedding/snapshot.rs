@@ -48,9 +48,9 @@ impl Embedding {
         self.version
     }
 
-    /// Width of a state embedding.
+    /// Width of the policy's input ([`Self::embed_states`]).
     pub fn state_dim(&self) -> usize {
-        self.model.config().state_dim
+        self.model.config().policy_input_dim()
     }
 
     /// Width of an action embedding.
@@ -63,11 +63,13 @@ impl Embedding {
         &self.model
     }
 
-    /// phi of every state, `[batch, m]` row-major, appended to `out` (cleared first).
+    /// The policy's input for every state (phi, and the next-item head's pre-activation
+    /// where the model has one: [`EmbeddingModel::policy_input`]), `[batch, state_dim]`
+    /// row-major, in `out` (cleared first).
     pub fn embed_states(&self, states: &StateBatch, out: &mut Vec<f32>) {
         out.clear();
         if !states.is_empty() {
-            out.extend(nn::to_vec(self.model.embed_states(states)));
+            out.extend(nn::to_vec(self.model.policy_input(states)));
         }
     }
 

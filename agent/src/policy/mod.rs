@@ -136,13 +136,18 @@ impl Policy {
         rng: &mut ChaCha8Rng,
         device: &Device,
     ) -> Self {
+        // the Gaussian mean starts at the input's last `dim` columns: the embedder's next-item
+        // head (`ppo.recommender.mean_at_next_item`)
+        let anchored = config.recommender.mean_at_next_item
+            && matches!(head, PolicyHead::Gaussian { dim } if dim <= input);
         let actor = MlpConfig {
             input,
             hidden: config.hidden.clone(),
             output: head.outputs(),
             output_gain: 0.01,
-            skip: config.wide_actor,
+            skip: config.wide_actor || anchored,
             zero_inputs: config.recommender.pair_buckets,
+            skip_identity: anchored.then(|| input - head.outputs()),
         }
         .init(rng, device);
         let critic = MlpConfig {
@@ -152,6 +157,7 @@ impl Policy {
             output_gain: 1.0,
             skip: false,
             zero_inputs: config.recommender.pair_buckets,
+            skip_identity: None,
         }
         .init(rng, device);
         let dim = match head {
@@ -446,7 +452,7 @@ pub fn policy_shape(
 ) -> (usize, PolicyHead) {
     let representation = config.algo.representation();
     let input = if representation.embeds_states() {
-        config.embedding.state_dim
+        config.embedding.policy_input_dim()
     } else {
         states.feature_len()
     };

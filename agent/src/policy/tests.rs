@@ -51,3 +51,32 @@ fn observation_statistics_travel_with_the_weights() {
         "same weights and statistics, same action"
     );
 }
+
+#[test]
+fn the_mean_starts_at_the_next_item_part_of_the_input() {
+    let device = DeviceKind::Flex.device();
+    let mut config = PpoConfig {
+        tanh_mean: true,
+        ..PpoConfig::default()
+    };
+    config.recommender.mean_at_next_item = true;
+    let head = PolicyHead::Gaussian { dim: 3 };
+    let policy = Policy::new(&config, 7, head, &mut ChaCha8Rng::seed_from_u64(2), &device);
+    // phi's 4 columns, then the head's pre-activation (3)
+    let x = [0.9, -0.4, 0.2, 0.7, 1.5, -0.3, 0.05];
+    let mean = policy.head_outputs(&x, None);
+    for (j, m) in mean.iter().enumerate() {
+        let want = f32::tanh(x[4 + j]);
+        assert!((m - want).abs() < 0.05, "component {j}: {m} against {want}");
+    }
+    // and it is a warm start: the path is a parameter like the others
+    let plain = Policy::new(
+        &PpoConfig::default(),
+        7,
+        head,
+        &mut ChaCha8Rng::seed_from_u64(2),
+        &device,
+    );
+    let far = plain.head_outputs(&x, None);
+    assert!(far.iter().all(|m| m.abs() < 0.05), "{far:?}");
+}

@@ -1,7 +1,8 @@
 //! Warm starts (`--init-from RUN`): the parts of another run's model whose shapes match this
 //! one's are copied over. Between action spaces of different sizes that is phi, T (and its
-//! hidden layer), the state statistics and RA's inverse model; g, f and the AE's action
-//! decoder come along only when the action counts are equal.
+//! hidden layer), the state statistics, RA's inverse model, phi's pair rows and the
+//! next-item head; g, f and the AE's action decoder come along only when the action counts
+//! are equal.
 
 use burn::module::Param;
 use burn::nn::Linear;
@@ -61,10 +62,14 @@ pub(super) fn warm_start(model: &mut EmbeddingModel, source: &EmbeddingModel) ->
     take!(state_decoder, same_linear);
     take!(action_decoder, same_linear);
     take!(inverse, same_mlp);
-    take!(
-        inverse_log_scale,
-        |a: &Option<Param<Tensor<1>>>, b: &Option<Param<Tensor<1>>>| a.is_some() && b.is_some()
-    );
+    let both =
+        |a: &Option<Param<Tensor<1>>>, b: &Option<Param<Tensor<1>>>| a.is_some() && b.is_some();
+    take!(inverse_log_scale, both);
+    if same_states {
+        take!(phi_pair, same_table);
+    }
+    take!(next_item, same_linear);
+    take!(next_item_log_scale, both);
     let same_norm = matches!((&to.state_norm, &from.state_norm), (Some(_), Some(_))) && same_states;
     if same_norm {
         to.state_norm = from.state_norm.clone();

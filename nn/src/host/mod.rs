@@ -404,6 +404,7 @@ mod tests {
             output_gain: 1.0,
             skip: true,
             zero_inputs: 0,
+            skip_identity: None,
         };
         let mut mlp = config.init(&mut rng, &device);
         let host = HostMlp::from_burn(&mlp);

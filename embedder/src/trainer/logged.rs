@@ -1,0 +1,331 @@
+//! Pre-training on logged purchases (`embedding.recommender.logged_pretrain_epochs`): before
+//! the random-play pre-training, passes of shuffled minibatches over the logged steps (the
+//! state before each purchase and the item bought) with the next-item loss alone. phi (its
+//! pair rows too), g and the next-item head learn which items follow which contexts from
+//! every logged purchase; the random-play pre-training then adds T's loss. A shop has its
+//! purchase logs before it has a policy.
+
+use std::sync::Arc;
+
+use jsae_wire::StateBatch;
+use rand::seq::SliceRandom;
+
+use super::EmbedderTrainer;
+use crate::representation::RepresentationModel;
+
+/// Logged purchases: the state before each purchase, as the actors encode states, and the
+/// item bought (the caller, which knows the data, reads them; the held-out sessions never).
+#[derive(Debug, Clone)]
+pub struct LoggedItems {
+    /// The states.
+    pub states: StateBatch,
+    /// The item bought after each.
+    pub items: Vec<u32>,
+}
+
+impl LoggedItems {
+    /// Rows `rows` of the logs.
+    fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
+        let items = rows.iter().map(|&r| self.items[r]).collect();
+        let states = match &self.states {
+            StateBatch::Categorical { factors, data } => StateBatch::Categorical {
+                factors: *factors,
+                data: rows
+                    .iter()
+                    .flat_map(|&r| data[r * factors..(r + 1) * factors].iter().copied())
+                    .collect(),
+            },
+            StateBatch::Real { dim, data } => StateBatch::Real {
+                dim: *dim,
+                data: rows
+                    .iter()
+                    .flat_map(|&r| data[r * dim..(r + 1) * dim].iter().copied())
+                    .collect(),
+            },
+        };
+        (states, items)
+    }
+}
+
+/// What the logged pre-training did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoggedReport {
+    /// Logged steps.
+    pub samples: usize,
+    /// Passes over them.
+    pub epochs: usize,
+    /// Mean next-item loss over the first pass's minibatches (nats).
+    pub first_loss: f32,
+    /// The same over the last pass's.
+    pub last_loss: f32,
+}
+
+impl<M: RepresentationModel> EmbedderTrainer<M> {
+    /// The logged purchases pre-training starts with (`embedding.recommender.
+    /// logged_pretrain_epochs`; kept until then).
+    ///
+    /// # Errors
+    /// When the states are not of the model's state space, the lengths differ, an item is
+    /// not an action, or there are none.
+    pub fn set_logged(&mut self, logged: Arc<LoggedItems>) -> Result<(), String> {
+        let rows = logged.states.len();
+        if rows == 0 || rows != logged.items.len() {
+            return Err(format!(
+                "logged purchases: {rows} states and {} items (both must be the same, and not 0)",
+                logged.items.len()
+            ));
+        }
+        jsae_wire::validate_states(&logged.states, self.model.state_space())
+            .map_err(|e| format!("logged purchases: {e}"))?;
+        let n = self.model.action_space().num_discrete().unwrap_or(0);
+        if let Some(bad) = logged.items.iter().find(|&&i| i as usize >= n) {
+            return Err(format!(
+                "logged purchases: item {bad} is not one of the {n} actions"
+            ));
+        }
+        self.logged = Some(logged);
+        Ok(())
+    }
+
+    /// With the next-item head, every next state's last item must be an action (the head's
+    /// target; the wire allows the "none" slot there, which no environment step produces).
+    pub(super) fn check_next_items(
+        &self,
+        batch: &jsae_wire::TransitionBatch,
+    ) -> Result<(), jsae_wire::ValidationError> {
+        let (true, Some(n), StateBatch::Categorical { factors, data }) = (
+            self.config.recommender.next_item(),
+            self.model.action_space().num_discrete(),
+            &batch.next_states,
+        ) else {
+            return Ok(());
+        };
+        let last = data
+            .iter()
+            .skip(factors.saturating_sub(1))
+            .step_by((*factors).max(1));
+        match last.copied().find(|&v| v as usize >= n) {
+            Some(value) => Err(jsae_wire::ValidationError::OutOfRange {
+                field: "next_states (the item bought, the next-item head's target)",
+                value,
+                limit: n,
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// The logged passes, when the settings ask and logs were given (None otherwise).
+    pub(super) fn pretrain_on_logs(&mut self) -> Option<LoggedReport> {
+        let epochs = self.config.recommender.logged_pretrain_epochs;
+        let logged = self.logged.take()?;
+        if epochs == 0 {
+            return None;
+        }
+        let n = logged.items.len();
+        let mut order: Vec<usize> = (0..n).collect();
+        let bs = self.config.batch_size.min(n);
+        let lr = self.config.lr;
+        let mut losses = Vec::with_capacity(epochs);
+        let started = std::time::Instant::now();
+        let mut logged_at = started;
+        for epoch in 1..=epochs {
+            order.shuffle(&mut self.rng);
+            let (mut sum, mut count) = (0.0, 0);
+            for rows in order.chunks(bs) {
+                let (states, items) = logged.gather(rows);
+                if let Some(l) =
+                    self.model
+                        .train_next_item_step(&mut self.optim.0, &states, &items, lr)
+                {
+                    sum += l;
+                    count += 1;
+                }
+            }
+            losses.push(sum / count.max(1) as f32);
+            if logged_at.elapsed().as_secs() >= 10 {
+                logged_at = std::time::Instant::now();
+                let left = started.elapsed().as_secs_f64() / epoch as f64 * (epochs - epoch) as f64;
+                tracing::info!(
+                    "pre-training the embedding on {n} logged purchases: epoch {epoch}/{epochs}, \
+                     next-item loss {:.3}, about {left:.0} s left",
+                    sum / count.max(1) as f32
+                );
+            }
+        }
+        let report = LoggedReport {
+            samples: n,
+            epochs,
+            first_loss: losses.first().copied().unwrap_or(f32::NAN),
+            last_loss: losses.last().copied().unwrap_or(f32::NAN),
+        };
+        tracing::info!(
+            samples = n,
+            epochs,
+            first_loss = report.first_loss,
+            last_loss = report.last_loss,
+            "embedding pre-trained on the logged purchases (next-item loss)"
+        );
+        Some(report)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::EmbeddingTraining;
+    use jsae_nn::{DeviceKind, to_vec};
+    use jsae_settings::{EmbeddingConfig, Representation};
+    use jsae_wire::{ActionBatch, ActionSpace, StateSpace, TransitionBatch};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    const ITEMS: u32 = 12;
+
+    /// Two-item states (slot `ITEMS` is "none"); the item bought after `(b, l)` is
+    /// `(b + 2 l) mod ITEMS`: a pair's, not either item's alone.
+    fn logs(rows: usize, rng: &mut ChaCha8Rng) -> LoggedItems {
+        let mut data = Vec::new();
+        let mut items = Vec::new();
+        for _ in 0..rows {
+            let (b, l) = (rng.random_range(0..ITEMS), rng.random_range(0..ITEMS));
+            data.extend([b, l]);
+            items.push((b + 2 * l) % ITEMS);
+        }
+        LoggedItems {
+            states: StateBatch::Categorical { factors: 2, data },
+            items,
+        }
+    }
+
+    fn trainer(epochs: usize) -> EmbedderTrainer {
+        let mut config = EmbeddingConfig {
+            state_dim: 8,
+            action_dim: 6,
+            pretrain_transitions: 256,
+            pretrain_per_action: 0,
+            pretrain_epochs: 1,
+            batch_size: 64,
+            ..EmbeddingConfig::default()
+        };
+        config.recommender.next_item_coef = 1.0;
+        config.recommender.pair_buckets = 4096;
+        config.recommender.logged_pretrain_epochs = epochs;
+        let states = StateSpace::Categorical {
+            sizes: vec![ITEMS as usize + 1; 2],
+        };
+        let actions = ActionSpace::Discrete { n: ITEMS as usize };
+        EmbedderTrainer::new(
+            config,
+            Representation::Jsae,
+            &states,
+            &actions,
+            3,
+            DeviceKind::Flex,
+        )
+    }
+
+    fn random_play(rng: &mut ChaCha8Rng) -> TransitionBatch {
+        let n = 256;
+        let s: Vec<u32> = (0..2 * n).map(|_| rng.random_range(0..ITEMS)).collect();
+        let a: Vec<u32> = (0..n).map(|_| rng.random_range(0..ITEMS)).collect();
+        let next = s
+            .chunks_exact(2)
+            .flat_map(|p| [p[1], rng.random_range(0..ITEMS)])
+            .collect();
+        TransitionBatch {
+            actor_id: 0,
+            states: StateBatch::Categorical {
+                factors: 2,
+                data: s,
+            },
+            actions: ActionBatch::Discrete(a),
+            rewards: vec![0.0; n],
+            next_states: StateBatch::Categorical {
+                factors: 2,
+                data: next,
+            },
+            terminated: vec![false; n],
+        }
+    }
+
+    /// The share of `logs` whose bought item is the one nearest to the head's output.
+    fn hits(t: &EmbedderTrainer, logs: &LoggedItems) -> f64 {
+        let logits = t
+            .model()
+            .next_item_logits(t.model().embed_states(&logs.states))
+            .expect("the head");
+        let logits = to_vec(logits);
+        let n = ITEMS as usize;
+        let right = logits
+            .chunks_exact(n)
+            .zip(&logs.items)
+            .filter(|(row, item)| {
+                let best = (0..n).max_by(|&i, &j| row[i].total_cmp(&row[j]));
+                best == Some(**item as usize)
+            })
+            .count();
+        right as f64 / logs.items.len() as f64
+    }
+
+    #[test]
+    fn the_logs_teach_the_head_what_follows_a_pair() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let logged = Arc::new(logs(2048, &mut rng));
+        let mut results = Vec::new();
+        for epochs in [0, 40] {
+            let mut t = trainer(epochs);
+            t.set_logged(logged.clone()).expect("fits");
+            let before = t.model().next_item_loss(&logged.states, &logged.items);
+            let before = before.expect("the head").into_scalar::<f32>();
+            t.ingest(&random_play(&mut rng)).expect("valid");
+            t.poll().expect("serialises").expect("pre-trained");
+            let after = t.model().next_item_loss(&logged.states, &logged.items);
+            results.push((
+                before,
+                after.expect("head").into_scalar::<f32>(),
+                hits(&t, &logged),
+            ));
+        }
+        let (without, with) = (results[0], results[1]);
+        assert!(with.1 < 0.3 * with.0, "the loss falls: {with:?}");
+        assert!(
+            with.2 > 0.6,
+            "the nearest item is mostly the one bought: {with:?}"
+        );
+        assert!(
+            without.2 < 0.3,
+            "random play alone does not teach it: {without:?}"
+        );
+    }
+
+    #[test]
+    fn logs_that_do_not_fit_are_refused() {
+        let mut t = trainer(1);
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let mut bad = logs(10, &mut rng);
+        bad.items[3] = ITEMS;
+        let reason = t.set_logged(Arc::new(bad)).expect_err("no such item");
+        assert!(reason.contains("not one of the 12 actions"), "{reason}");
+        let mut short = logs(10, &mut rng);
+        short.items.pop();
+        assert!(t.set_logged(Arc::new(short)).is_err());
+        let wide = LoggedItems {
+            states: StateBatch::Categorical {
+                factors: 2,
+                data: vec![ITEMS + 1, 0],
+            },
+            items: vec![0],
+        };
+        assert!(
+            t.set_logged(Arc::new(wide)).is_err(),
+            "a state out of range"
+        );
+        // from the wire: a next state whose last item is the "none" slot is no target
+        let mut batch = random_play(&mut rng);
+        if let StateBatch::Categorical { data, .. } = &mut batch.next_states {
+            data[1] = ITEMS;
+        }
+        let reason = t.ingest(&batch).expect_err("no such item").to_string();
+        assert!(reason.contains("next-item head"), "{reason}");
+    }
+}

@@ -1,0 +1,231 @@
+//! The recommender's embedding settings (`[embedding.recommender]`): what lets JSAE learn the
+//! items' structure from what every transition carries, the item bought next, rather than
+//! from the rare transitions where a recommendation was bought
+//! (docs/src/experiments/recommender-jsae.md). All off by default, which is the paper's JSAE.
+
+use serde::{Deserialize, Serialize};
+
+use super::ppo_recommender::MAX_PAIR_BUCKETS;
+use crate::TrainConfig;
+
+/// Most floats in phi's pair rows (`pair_buckets x state_dim`): 64 MiB, well inside a
+/// snapshot (131,072 x 64 in use).
+pub const MAX_PAIR_FLOATS: usize = 1 << 24;
+
+/// The recommender's embedding settings.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct RecommenderEmbeddingConfig {
+    /// Weight of the next-item loss (0: off, the paper's JSAE): a head `h(x) = tanh(W x + b)`
+    /// in the action-embedding space scores every item `i` by `-s |h(x) - g(i)|^2` (`s` a
+    /// learned scale), and the cross-entropy against the item bought next is added to T's
+    /// loss. g is tied to the items' output embedding, so the item nearest to `h(x)`, which f
+    /// decodes, is the one the head finds most likely. The policy's input becomes
+    /// `concat(phi(s), W x + b)`.
+    pub next_item_coef: f64,
+    /// Buckets of a pair row in phi (0: none): phi's pre-activation also adds a row picked by
+    /// a hash of the state's last two items (starting at zero), so states that share an item
+    /// can differ in what follows them.
+    pub pair_buckets: usize,
+    /// Passes over the logged purchases (the sessions the simulator is built from, never the
+    /// held-out ones) before the random-play pre-training, with the next-item loss alone, at
+    /// `embedding.lr` (0: none; needs `next_item_coef > 0`).
+    pub logged_pretrain_epochs: usize,
+}
+
+impl Default for RecommenderEmbeddingConfig {
+    fn default() -> Self {
+        Self {
+            next_item_coef: 0.0,
+            pair_buckets: 0,
+            logged_pretrain_epochs: 0,
+        }
+    }
+}
+
+impl RecommenderEmbeddingConfig {
+    /// Whether any of them is on (only the recommender's JSAE may set them).
+    pub fn any(&self) -> bool {
+        self.next_item_coef > 0.0 || self.pair_buckets > 0 || self.logged_pretrain_epochs > 0
+    }
+
+    /// Whether the model has the next-item head (and the policy reads its output).
+    pub fn next_item(&self) -> bool {
+        self.next_item_coef > 0.0
+    }
+
+    /// Checks the settings (`state_dim`: `[embedding]`'s); the reason names the bad key.
+    pub fn validate(&self, state_dim: usize) -> Result<(), String> {
+        if self.pair_buckets.saturating_mul(state_dim) > MAX_PAIR_FLOATS {
+            return Err(format!(
+                "embedding.recommender.pair_buckets x embedding.state_dim is {} x {state_dim}, \
+                 at most {MAX_PAIR_FLOATS} floats",
+                self.pair_buckets
+            ));
+        }
+        if !(self.next_item_coef >= 0.0 && self.next_item_coef.is_finite()) {
+            return Err(format!(
+                "embedding.recommender.next_item_coef must be finite and >= 0, got {}",
+                self.next_item_coef
+            ));
+        }
+        if self.pair_buckets > MAX_PAIR_BUCKETS {
+            return Err(format!(
+                "embedding.recommender.pair_buckets is {}, at most {MAX_PAIR_BUCKETS}",
+                self.pair_buckets
+            ));
+        }
+        if self.logged_pretrain_epochs > 0 && !self.next_item() {
+            return Err(
+                "embedding.recommender.logged_pretrain_epochs needs next_item_coef > 0 (the \
+                 logs hold states and the items bought, which only the next-item loss reads)"
+                    .into(),
+            );
+        }
+        Ok(())
+    }
+}
+
+/// The recommender's JSAE defaults: under the paper's loss g learns only from bought
+/// recommendations (0.34% of random play, 0.001 nats of the next state) and stays at random
+/// play; the item bought next, in every transition and in the logs, teaches phi, g and the
+/// next-item head instead, and the policy's mean starts at the head's item
+/// (docs/src/experiments/recommender-jsae.md). The paper's JSAE: `[embedding.recommender]`
+/// and `ppo.recommender.mean_at_next_item` off.
+pub(crate) fn jsae_recommender_defaults(c: &mut TrainConfig) {
+    let e = &mut c.embedding;
+    (e.state_dim, e.action_dim) = (64, 64);
+    e.batch_size = 4096;
+    e.pretrain_transitions = 20_000;
+    e.pretrain_epochs = 1;
+    e.update_every = 0;
+    e.recommender.next_item_coef = 1.0;
+    e.recommender.pair_buckets = 131_072;
+    e.recommender.logged_pretrain_epochs = 100;
+    let p = &mut c.ppo;
+    p.gamma = 0.0;
+    p.lr = 1e-4;
+    p.ent_coef = 0.0;
+    p.init_log_std = -2.0;
+    p.recommender.mean_at_next_item = true;
+}
+
+/// The item settings against the rest of a run's: only the recommender's JSAE may set them,
+/// and the mean starts at the head only where there is a head, the mean is a tanh and the
+/// policy reads the head's output unnormalised.
+pub(crate) fn validate_for_run(c: &TrainConfig) -> Result<(), String> {
+    let recommender_jsae = c.env == crate::EnvName::Recommender && c.algo == crate::Algo::Jsae;
+    if c.embedding.recommender.any() && !recommender_jsae {
+        return Err(
+            "embedding.recommender.* is for --env recommender --algo jsae (the items \
+                    bought next, in the state's last factor, are its actions)"
+                .into(),
+        );
+    }
+    if c.ppo.recommender.mean_at_next_item
+        && !(recommender_jsae
+            && c.embedding.recommender.next_item()
+            && c.ppo.tanh_mean
+            && !c.ppo.normalize_obs)
+    {
+        return Err(
+            "ppo.recommender.mean_at_next_item is for --env recommender --algo jsae with \
+             embedding.recommender.next_item_coef > 0 (the head whose output the mean starts \
+             at), ppo.tanh_mean = true (the head's tanh) and ppo.normalize_obs = false (the \
+             head's output as it is)"
+                .into(),
+        );
+    }
+    Ok(())
+}
+
+/// `[embedding]` keys every run directory's config.toml holds (a whole dump of the settings).
+const DUMPED: [&str; 8] = [
+    "state_dim",
+    "action_dim",
+    "lr",
+    "batch_size",
+    "pretrain_transitions",
+    "pretrain_epochs",
+    "replay_capacity",
+    "update_lr",
+];
+
+/// A run directory's config.toml from before `[embedding.recommender]` existed (a whole
+/// `[embedding]` table without it) ran with the item settings off: they are set so, in
+/// `embedding` and in `ppo`'s `[ppo.recommender]`, so that the run reads (and its checkpoints
+/// load) as it did. A settings file of a user's names only some keys and is left as it is.
+pub(crate) fn items_off_in_older_dumps(
+    embedding: &mut Option<toml::Value>,
+    ppo: &mut Option<toml::Value>,
+) {
+    let Some(table) = embedding.as_mut().and_then(toml::Value::as_table_mut) else {
+        return;
+    };
+    if table.contains_key("recommender") || !DUMPED.iter().all(|k| table.contains_key(*k)) {
+        return;
+    }
+    let mut off = toml::Table::new();
+    off.insert("next_item_coef".into(), toml::Value::Float(0.0));
+    off.insert("pair_buckets".into(), toml::Value::Integer(0));
+    off.insert("logged_pretrain_epochs".into(), toml::Value::Integer(0));
+    table.insert("recommender".into(), toml::Value::Table(off));
+    let ppo = ppo.get_or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    if let Some(ppo) = ppo.as_table_mut() {
+        let sub = ppo
+            .entry("recommender")
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+        if let Some(sub) = sub.as_table_mut() {
+            sub.entry("mean_at_next_item")
+                .or_insert(toml::Value::Boolean(false));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::{Algo, EnvName, TrainConfig};
+
+    fn items_on(env: EnvName, algo: Algo) -> TrainConfig {
+        let mut c = TrainConfig::defaults(env, algo);
+        c.embedding.recommender.next_item_coef = 1.0;
+        c.embedding.recommender.pair_buckets = 1024;
+        c.embedding.recommender.logged_pretrain_epochs = 2;
+        c.ppo.recommender.mean_at_next_item = true;
+        c
+    }
+
+    #[test]
+    fn the_item_settings_are_the_recommenders_jsae_only() {
+        let c = items_on(EnvName::Recommender, Algo::Jsae);
+        c.validate().expect("the recommender's JSAE takes them");
+        assert_eq!(
+            c.embedding.policy_input_dim(),
+            c.embedding.state_dim + c.embedding.action_dim
+        );
+        for (env, algo) in [
+            (EnvName::Recommender, Algo::Ae),
+            (EnvName::Gridworld, Algo::Jsae),
+        ] {
+            let reason = items_on(env, algo)
+                .validate()
+                .expect_err("refused")
+                .to_string();
+            assert!(reason.contains("embedding.recommender"), "{reason}");
+        }
+        let mut c = items_on(EnvName::Recommender, Algo::Jsae);
+        c.embedding.recommender.logged_pretrain_epochs = 0;
+        c.embedding.recommender.next_item_coef = 0.0;
+        let reason = c.validate().expect_err("no head to start at").to_string();
+        assert!(reason.contains("mean_at_next_item"), "{reason}");
+        c.ppo.recommender.mean_at_next_item = false;
+        c.validate().expect("pair rows alone");
+        assert_eq!(c.embedding.policy_input_dim(), c.embedding.state_dim);
+        c.embedding.recommender.logged_pretrain_epochs = 3;
+        let reason = c.validate().expect_err("logs need the head").to_string();
+        assert!(reason.contains("logged_pretrain_epochs"), "{reason}");
+        c.embedding.recommender.logged_pretrain_epochs = 0;
+        c.embedding.recommender.next_item_coef = f64::NAN;
+        assert!(c.validate().is_err());
+    }
+}
