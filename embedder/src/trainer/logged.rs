@@ -27,22 +27,20 @@ impl LoggedItems {
     /// Rows `rows` of the logs.
     fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
         let items = rows.iter().map(|&r| self.items[r]).collect();
-        let states = match &self.states {
-            StateBatch::Categorical { factors, data } => StateBatch::Categorical {
+        // an empty batch of the logs' kind (not a copy of them: this runs per minibatch)
+        let mut states = match &self.states {
+            StateBatch::Categorical { factors, .. } => StateBatch::Categorical {
                 factors: *factors,
-                data: rows
-                    .iter()
-                    .flat_map(|&r| data[r * factors..(r + 1) * factors].iter().copied())
-                    .collect(),
+                data: Vec::new(),
             },
-            StateBatch::Real { dim, data } => StateBatch::Real {
+            StateBatch::Real { dim, .. } => StateBatch::Real {
                 dim: *dim,
-                data: rows
-                    .iter()
-                    .flat_map(|&r| data[r * dim..(r + 1) * dim].iter().copied())
-                    .collect(),
+                data: Vec::new(),
             },
         };
+        for &r in rows {
+            states.push_row_of(&self.states, r);
+        }
         (states, items)
     }
 }
