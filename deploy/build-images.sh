@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Builds the jsae image from this checkout: the binaries on the host (cargo; the image has no
-# toolchain), staged with libmujoco, the MuJoCo XMLs and the Instacart sample into
+# toolchain), staged with libmujoco, the MuJoCo XMLs, the Instacart sample and MovieLens-100K into
 # deploy/.stage, then `docker build -f deploy/Dockerfile`.
 #   PROFILE=release (default) or dev: the binaries exactly as `cargo test --workspace` builds
 #                   them (the same features, so after the tests nothing compiles again: CI)
@@ -29,7 +29,7 @@ echo "build-images: cargo build ${flag[*]} --bins" >&2
 cargo build "${flag[@]}" --bins >&2
 stage="deploy/.stage"
 rm -rf "$stage"
-mkdir -p "$stage/bin" "$stage/lib" "$stage/share/mujoco" "$stage/share/instacart"
+mkdir -p "$stage/bin" "$stage/lib" "$stage/share/mujoco" "$stage/share/instacart" "$stage/share/movielens"
 for b in jsae jsae-actor jsae-embedder jsae-learner; do
     cp "${CARGO_TARGET_DIR:-target}/$dir/$b" "$stage/bin/"
 done
@@ -37,6 +37,7 @@ strip "$stage"/bin/* 2>/dev/null || true
 cp third_party/mujoco/libmujoco.so.3.17.0 "$stage/lib/"
 cp third_party/mujoco/assets/*.xml "$stage/share/mujoco/"
 cp third_party/instacart/df_sample.csv "$stage/share/instacart/"
+cp third_party/movielens/ml-100k.inter "$stage/share/movielens/"
 echo "build-images: docker build $tag (BASE=$base)" >&2
 docker build --quiet --build-arg "BASE=$base" -f deploy/Dockerfile -t "$tag" . >&2
 echo "build-images: $tag, $(docker image inspect -f '{{.Size}}' "$tag") bytes" >&2

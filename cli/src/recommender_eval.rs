@@ -1,5 +1,6 @@
 //! `jsae recommender-eval --run DIR`: a recommender run judged the way recommender systems
-//! are, beside the reference policies: hit rate@k and NDCG@k on the held-out sessions
+//! are, beside the reference policies (popular, item-kNN, the greedy rule, random): hit
+//! rate@k, NDCG@k and MRR@k on the held-out sessions
 //! (`jsae_recommender::offline`), and each policy's simulated return under the run's
 //! evaluation protocol (the learned one as `jsae eval` computes it). Prints JSON.
 
@@ -90,12 +91,9 @@ fn evaluate(a: &RecommenderEvalArgs) -> Result<Output, (u8, String)> {
         ranking: offline::score(&learned, &model, &queries, a.k, "learned").map_err(rank_err)?,
         return_mean: simulated,
     }];
-    for (choice, reference) in [
-        (PolicyChoice::MostLikely, Reference::MostLikely),
-        (PolicyChoice::Popular, Reference::Popular),
-    ] {
-        let rec =
-            Recommender::new(&config, choice, config.device).map_err(|e| (1, e.to_string()))?;
+    for reference in Reference::ALL {
+        let rec = Recommender::new(&config, reference.choice(), config.device)
+            .map_err(|e| (1, e.to_string()))?;
         policies.push(PolicyRow {
             ranking: offline::score(&rec, &model, &queries, a.k, reference.name())
                 .map_err(rank_err)?,

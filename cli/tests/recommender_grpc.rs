@@ -277,8 +277,8 @@ fn stop_with_sigterm(server: Server) {
     assert!(status.success(), "{status:?}");
 }
 
-/// `--policy most-likely|popular` need no run: each answers the Python client with its own
-/// ranking (the library's, from the same data), and only most-likely reads the history.
+/// `--policy most-likely|item-knn|popular` need no run: each answers the Python client with
+/// its own ranking (the library's, from the same data), and only popular ignores the history.
 #[test]
 fn the_reference_policies_are_served_to_a_python_client() {
     use jsae_recommender::Recommender;
@@ -307,6 +307,7 @@ fn the_reference_policies_are_served_to_a_python_client() {
     let (first, second) = (["item-0", "item-1"], ["item-5", "item-2"]);
     for (name, choice) in [
         ("most-likely", PolicyChoice::MostLikely),
+        ("item-knn", PolicyChoice::ItemKnn),
         ("popular", PolicyChoice::Popular),
     ] {
         let mut args: Vec<std::ffi::OsString> = vec!["--policy".into(), name.into()];

@@ -74,6 +74,10 @@ pub enum SessionSource {
     Rees46,
     /// Seeded synthetic sessions (`[environment.recommender.synthetic]`).
     Synthetic,
+    /// MovieLens-100K ratings (`ml-100k.inter` of the `recbole==1.2.1` wheel), fetched by
+    /// `scripts/setup-data.sh`: a user's ratings in time order form one session (a rating
+    /// counts as a purchase), so the held-out split is by user.
+    Movielens100k,
 }
 
 /// How REES46 purchases are grouped into sessions.
@@ -94,6 +98,27 @@ pub enum RewardOn {
     Accepted,
     /// Every purchase (the recommendation only shifts which item is bought).
     Any,
+}
+
+/// How an episode of the recommender starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum StartRule {
+    /// A first purchase drawn as the data's sessions begin, "none" before it.
+    Session,
+    /// Two catalogue items drawn uniformly (the authors' environment).
+    UniformPair,
+}
+
+/// Where the recommender's item values (a reward's price) come from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Prices {
+    /// The mean price the data paid for the item, 1 where it has none.
+    Data,
+    /// The data's price where it has one, else a price drawn once per item id (log-normal,
+    /// median 1, sigma 0.75, seeded by the id: the same on every machine).
+    Synthetic,
 }
 
 /// The recommender: the n-gram MDP of DESIGN.md over the `top_n` most purchased items.
@@ -119,8 +144,23 @@ pub struct RecommenderConfig {
     pub mix: f64,
     /// Purchases per episode (the episode is truncated after them).
     pub episode_len: u32,
-    /// When a step pays its reward (the price, or 1 without prices).
+    /// When a step pays its reward (the item's value: `prices`).
     pub reward_on: RewardOn,
+    /// Where an item's value comes from.
+    pub prices: Prices,
+    /// Added to the recommended item's purchase probability (after the boost, before
+    /// renormalising): every recommendation is then bought at least about this often
+    /// (0: ours; the authors' environment: 0.05).
+    pub recommend_floor: f64,
+    /// How an episode starts.
+    pub start: StartRule,
+    /// The long-horizon option: after a recommendation the user did not buy, they leave (the
+    /// episode terminates) with probability `leave_on_miss` times the recommended item's
+    /// value, at most 1: a pricier item pushed in vain costs more goodwill (0: users never
+    /// leave, the episode is a near-bandit). With values that differ (`prices`), the myopic
+    /// greedy rule's pricier, less likely items then cost it the user's later purchases
+    /// (docs/src/recommender/environments.md).
+    pub leave_on_miss: f64,
     /// Session store written by the Recommender service's `SubmitSessions` (empty: none).
     /// Actors add its sessions to the data and reload it every `refresh_seconds`.
     pub store_dir: std::path::PathBuf,
@@ -148,6 +188,10 @@ impl Default for RecommenderConfig {
             mix: 0.5,
             episode_len: 20,
             reward_on: RewardOn::Accepted,
+            prices: Prices::Data,
+            recommend_floor: 0.0,
+            start: StartRule::Session,
+            leave_on_miss: 0.0,
             store_dir: std::path::PathBuf::new(),
             refresh_seconds: 60,
             holdout: 0.1,
@@ -304,6 +348,14 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     }
     if !(r.smoothing > 0.0 && r.smoothing.is_finite() && (0.0..=1.0).contains(&r.mix)) {
         return Err("recommender.smoothing must be > 0 and recommender.mix in [0, 1]".into());
+    }
+    for (name, p) in [
+        ("recommend_floor", r.recommend_floor),
+        ("leave_on_miss", r.leave_on_miss),
+    ] {
+        if !(0.0..=1.0).contains(&p) {
+            return Err(format!("recommender.{name} must be in [0, 1], got {p}"));
+        }
     }
     if r.episode_len == 0 || r.refresh_seconds == 0 {
         return Err("recommender.episode_len and refresh_seconds must be positive".into());

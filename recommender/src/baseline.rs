@@ -1,6 +1,7 @@
 //! Reference policies for the recommender: the most popular item whatever the history (the
-//! highest purchase share times value) and the myopic "most likely next item" that reads the
-//! n-gram model itself (an upper reference a learned policy does not get to see). One home
+//! highest purchase share times value), item-kNN by co-visitation (the items bought near the
+//! history's items in the data's sessions), and the myopic greedy rule that reads the n-gram
+//! model itself (an upper reference a learned policy does not get to see). One home
 //! for their scores: the returns here (scored like a run's evaluation, same episodes and
 //! seeds, beside uniformly random recommendations), the service's `--policy`, and the offline
 //! evaluation's rankings.
@@ -19,10 +20,14 @@ pub enum PolicyChoice {
     /// The run's policy (JSAE: nearest items to its action embedding; PPO: its softmax).
     #[default]
     Learned,
-    /// The most likely next item under the n-gram model (reads the simulator's model).
+    /// The myopic greedy rule: the highest expected reward now under the n-gram model (the
+    /// most likely next item where only an accepted recommendation pays and items have no
+    /// prices; reads the simulator's model).
     MostLikely,
     /// The most popular item, whatever the history.
     Popular,
+    /// Item-kNN: the items most often bought near the history's in the data's sessions.
+    ItemKnn,
 }
 
 impl PolicyChoice {
@@ -32,6 +37,7 @@ impl PolicyChoice {
             Self::Learned => None,
             Self::MostLikely => Some(Reference::MostLikely),
             Self::Popular => Some(Reference::Popular),
+            Self::ItemKnn => Some(Reference::ItemKnn),
         }
     }
 }
@@ -41,40 +47,55 @@ impl PolicyChoice {
 pub enum Reference {
     /// The highest purchase share times value, whatever the history.
     Popular,
-    /// The highest P(next = item | the last two purchases) times value.
+    /// The highest expected reward now: the probability that the item is bought when
+    /// recommended (boost and floor included) times its value, plus, where every purchase
+    /// pays, the other items' (`NgramModel::expected_rewards`).
     MostLikely,
+    /// The highest co-visitation similarity to the history (`NgramModel::covisit_scores`).
+    ItemKnn,
 }
 
 impl Reference {
     /// Every reference policy, in the order reports list them.
-    pub const ALL: [Self; 2] = [Self::Popular, Self::MostLikely];
+    pub const ALL: [Self; 3] = [Self::Popular, Self::ItemKnn, Self::MostLikely];
 
     /// The name reports and `--policy` use.
     pub fn name(self) -> &'static str {
         match self {
             Self::Popular => "popular",
             Self::MostLikely => "most-likely",
+            Self::ItemKnn => "item-knn",
         }
     }
 
-    /// The score of recommending `item` in `state` (the last purchases, oldest first, "none"
-    /// slots included; at least two).
-    pub fn score(self, model: &NgramModel, state: &[u32], item: u32) -> f64 {
+    /// The policy `--policy` names this one.
+    pub fn choice(self) -> PolicyChoice {
         match self {
-            Self::Popular => model.popularity(item) * model.value(item),
+            Self::Popular => PolicyChoice::Popular,
+            Self::MostLikely => PolicyChoice::MostLikely,
+            Self::ItemKnn => PolicyChoice::ItemKnn,
+        }
+    }
+
+    /// The score of recommending each catalogue item (by slot) in `state` (the last
+    /// purchases, oldest first, "none" slots included; at least two).
+    pub fn scores(self, model: &NgramModel, state: &[u32]) -> Vec<f64> {
+        match self {
+            Self::Popular => (0..model.catalogue().len() as u32)
+                .map(|a| model.popularity(a) * model.value(a))
+                .collect(),
             Self::MostLikely => {
                 let n = state.len();
-                model.probability(state[n - 2], state[n - 1], item) * model.value(item)
+                model.expected_rewards(state[n - 2], state[n - 1])
             }
+            Self::ItemKnn => model.covisit_scores(state),
         }
     }
 
     /// The `k` best catalogue items in `state` as `(item, score)`, best first (ties: the
     /// lower slot first).
     pub fn rank(self, model: &NgramModel, state: &[u32], k: usize) -> Vec<(u32, f64)> {
-        let mut all: Vec<(u32, f64)> = (0..model.catalogue().len() as u32)
-            .map(|a| (a, self.score(model, state, a)))
-            .collect();
+        let mut all: Vec<(u32, f64)> = (0u32..).zip(self.scores(model, state)).collect();
         crate::ranking::best_k(&mut all, k, f64::total_cmp);
         all
     }
@@ -88,7 +109,7 @@ impl Reference {
 /// Returns of one reference policy.
 #[derive(Debug, Clone, Serialize)]
 pub struct BaselineReturns {
-    /// `random`, `popular` or `most-likely`.
+    /// `random`, `popular`, `item-knn` or `most-likely`.
     pub policy: &'static str,
     /// Episodes run.
     pub episodes: usize,
@@ -175,14 +196,14 @@ mod tests {
         r.synthetic.sessions = 500;
         let first = baselines(&config, 200, 3).expect("runs");
         let again = baselines(&config, 200, 3).expect("runs");
-        assert_eq!(first.len(), 3);
+        assert_eq!(first.len(), 4);
         for (a, b) in first.iter().zip(&again) {
             assert_eq!(a.return_mean, b.return_mean, "{}", a.policy);
         }
         let names: Vec<_> = first.iter().map(|b| b.policy).collect();
-        assert_eq!(names, ["random", "popular", "most-likely"]);
+        assert_eq!(names, ["random", "popular", "item-knn", "most-likely"]);
         assert!(
-            first[2].return_mean > 2.0 * first[0].return_mean,
+            first[3].return_mean > 2.0 * first[0].return_mean,
             "{first:?}"
         );
     }

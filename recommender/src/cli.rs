@@ -111,7 +111,7 @@ fn config_of(args: &RecommenderArgs, security: &Security) -> Result<TrainConfig,
     if args.learner.is_none() && args.run.is_none() {
         return Err(
             "give --learner URL (follow a run) or --run DIR (a finished run), or serve a \
-             reference policy (--policy most-likely|popular)"
+             reference policy (--policy most-likely|item-knn|popular)"
                 .into(),
         );
     }

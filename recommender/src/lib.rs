@@ -9,8 +9,8 @@
 //! PPO's most likely ones, the store's writer), `grpc` (the handlers and `serve`), `submit`
 //! (SubmitSessions: staging, commit, the limits), `sources` (weights followed from a live run
 //! or loaded from a run directory's checkpoints), `cli` (`jsae recommender`'s flags and main),
-//! `baseline` (the reference policies: popular, most likely next item; with random, their
-//! returns), `offline` (hit rate@k and NDCG@k on held-out sessions), `logs` (the logged
+//! `baseline` (the reference policies: popular, item-kNN, the greedy rule; with random,
+//! their returns), `offline` (hit rate@k, NDCG@k and MRR@k on held-out sessions), `logs` (the logged
 //! purchases a fresh learner's policy learns from), `session_wire` (sessions to and from
 //! their gRPC form).
 //! The environment, data and session store are `jsae_envs::recsys`.

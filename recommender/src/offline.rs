@@ -19,11 +19,14 @@ use serde::Serialize;
 
 use crate::scoring::Recommender;
 
-/// Hit rate and NDCG of one policy.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+/// Hit rate, NDCG and MRR of one policy at `k` (JSON keys `hr_at_K`, `ndcg_at_K`, `mrr_at_K`,
+/// `coverage_at_K` beside `policy`).
+#[derive(Debug, Clone, PartialEq)]
 pub struct RankingMetrics {
-    /// `learned`, `most-likely`, `popular` or `random`.
+    /// `learned`, `most-likely`, `item-knn`, `popular` or `random`.
     pub policy: String,
+    /// Items recommended per query.
+    pub k: usize,
     /// Share of queries whose purchased item was among the `k` recommended.
     pub hit_rate: f64,
     /// Mean NDCG@k.
@@ -34,6 +37,20 @@ pub struct RankingMetrics {
     /// Catalogue coverage@k: the share of catalogue items in at least one query's `k` (1 for
     /// random recommendations over enough queries; a policy that ignores the state: k/n).
     pub coverage: f64,
+}
+
+impl Serialize for RankingMetrics {
+    fn serialize<S: serde::Serializer>(&self, out: S) -> Result<S::Ok, S::Error> {
+        use serde::ser::SerializeMap;
+        let k = self.k;
+        let mut map = out.serialize_map(Some(5))?;
+        map.serialize_entry("policy", &self.policy)?;
+        map.serialize_entry(&format!("hr_at_{k}"), &self.hit_rate)?;
+        map.serialize_entry(&format!("ndcg_at_{k}"), &self.ndcg)?;
+        map.serialize_entry(&format!("mrr_at_{k}"), &self.mrr)?;
+        map.serialize_entry(&format!("coverage_at_{k}"), &self.coverage)?;
+        map.end()
+    }
 }
 
 /// The queries of held-out sessions against one model.
@@ -102,6 +119,7 @@ pub fn score(
     let n = queries.queries.max(1) as f64;
     Ok(RankingMetrics {
         policy: name.to_owned(),
+        k,
         hit_rate: hits as f64 / n,
         ndcg: gain / n,
         mrr: reciprocal / n,
@@ -111,10 +129,12 @@ pub fn score(
 
 /// The expected hit rate@k, NDCG@k and MRR@k of `k` distinct items drawn uniformly from `items`.
 pub fn random_expectation(items: usize, k: usize) -> RankingMetrics {
+    let asked = k;
     let k = k.min(items);
     let per_rank = 1.0 / items.max(1) as f64;
     RankingMetrics {
         policy: "random".into(),
+        k: asked,
         hit_rate: k as f64 * per_rank,
         ndcg: (0..k).map(|i| per_rank / ((i + 2) as f64).log2()).sum(),
         mrr: (0..k).map(|i| per_rank / (i + 1) as f64).sum(),
@@ -141,6 +161,7 @@ mod tests {
         let held = held_out_sessions(&config.environment.recommender).expect("sessions");
         let rec = |choice| Recommender::new(&config, choice, config.device).expect("builds");
         let (likely, popular) = (rec(PolicyChoice::MostLikely), rec(PolicyChoice::Popular));
+        let knn = rec(PolicyChoice::ItemKnn);
         let model = likely.model();
         let q = queries(&likely, &model, &held);
         assert!(q.queries > 1000, "{q:?}");
@@ -148,6 +169,11 @@ mod tests {
         let a = score(&likely, &model, &q, 10, "most-likely").expect("ranks");
         let b = score(&popular, &model, &q, 10, "popular").expect("ranks");
         let c = random_expectation(model.catalogue().len(), 10);
+        let d = score(&knn, &model, &q, 10, "item-knn").expect("ranks");
+        assert!(
+            d.hit_rate > b.hit_rate && d.coverage > b.coverage,
+            "the history's neighbours beat the one popular list: {d:?} {b:?}"
+        );
         assert!(
             a.hit_rate > b.hit_rate && b.hit_rate > c.hit_rate,
             "{a:?} {b:?} {c:?}"
@@ -181,5 +207,14 @@ mod tests {
         let harmonic: f64 = (1..=10).map(|i| 1.0 / f64::from(i)).sum();
         assert!((r.mrr - 0.01 * harmonic).abs() < 1e-12);
         assert_eq!(random_expectation(5, 10).hit_rate, 1.0);
+        let json = serde_json::to_value(&r).expect("serialises");
+        assert_eq!(json["policy"], "random");
+        assert!(
+            (json["hr_at_10"].as_f64().expect("hr") - 0.1).abs() < 1e-12,
+            "{json}"
+        );
+        for key in ["ndcg_at_10", "mrr_at_10", "coverage_at_10"] {
+            assert!(json[key].is_f64(), "{key}: {json}");
+        }
     }
 }

@@ -6,7 +6,7 @@
 //! - JSAE: `x = phi(state)`, the policy's mean action embedding `e`, then the `k` items whose
 //!   `g` rows are nearest to `e` (score: minus the distance). PPO: the `k` most likely items
 //!   of the policy's softmax (score: the probability).
-//! - A reference policy (`--policy most-likely|popular`) ranks by its score instead
+//! - A reference policy (`--policy most-likely|item-knn|popular`) ranks by its score instead
 //!   ([`crate::baseline::Reference`]); it needs no weights.
 //! - The state is the last `history` known items of the request (items outside the model's
 //!   catalogue are ignored and counted), padded with "none" as at the start of an episode.

@@ -59,8 +59,8 @@ def main():
             if len(set(xs)) == 1:
                 return f"{m:.{digits}f}"
             return f"{m:.{digits}f} [{min(xs):.{digits}f}, {max(xs):.{digits}f}]"
-        print(f"| {name} | {len(v)} | {cell('hit_rate', 3)} | {cell('ndcg', 3)} | "
-              f"{cell('mrr', 3)} | {cell('coverage', 3)} | {cell('return_mean', 2)} |")
+        print(f"| {name} | {len(v)} | {cell(f'hr_at_{k}', 3)} | {cell(f'ndcg_at_{k}', 3)} | "
+              f"{cell(f'mrr_at_{k}', 3)} | {cell(f'coverage_at_{k}', 3)} | {cell('return_mean', 2)} |")
 
 
 if __name__ == "__main__":

@@ -29,9 +29,9 @@ pub use flags::{
     EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
 };
 pub use jsae_env_spec::{
-    EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, RecommenderConfig, RewardOn,
-    SessionSource, SlotmachineConfig, SyntheticConfig, gridworld_action_motions,
-    validate_env_config,
+    EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, Prices, RecommenderConfig,
+    RewardOn, SessionSource, SlotmachineConfig, StartRule, SyntheticConfig,
+    gridworld_action_motions, validate_env_config,
 };
 pub use jsae_nn::DeviceKind;
 pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};

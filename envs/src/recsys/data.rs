@@ -1,4 +1,4 @@
-//! Loading the sessions a run's settings name (REES46, Instacart, synthetic), and the
+//! Loading the sessions a run's settings name (REES46, Instacart, MovieLens, synthetic), and the
 //! held-out split of them for offline evaluation. The model built from them and the session
 //! store is `model_handle`'s.
 
@@ -7,14 +7,15 @@ use std::path::PathBuf;
 use jsae_env_spec::{RecommenderConfig, SessionSource};
 
 use super::sessions::{Session, id_hash};
-use super::{RecsysError, instacart, rees46, synthetic};
+use super::{RecsysError, instacart, movielens, rees46, synthetic};
 
 /// The data file the settings name (the fetched Instacart sample by default).
 pub fn data_path(config: &RecommenderConfig) -> PathBuf {
-    if config.path.as_os_str().is_empty() && config.source == SessionSource::Instacart {
-        instacart::default_path()
-    } else {
-        config.path.clone()
+    match config.source {
+        _ if !config.path.as_os_str().is_empty() => config.path.clone(),
+        SessionSource::Instacart => instacart::default_path(),
+        SessionSource::Movielens100k => movielens::default_path(),
+        SessionSource::Rees46 | SessionSource::Synthetic => config.path.clone(),
     }
 }
 
@@ -29,6 +30,12 @@ pub fn load_sessions(config: &RecommenderConfig) -> Result<Vec<Session>, RecsysE
             path.display()
         ))),
         SessionSource::Instacart => instacart::read(&path),
+        SessionSource::Movielens100k if !path.exists() => Err(RecsysError::Data(format!(
+            "MovieLens-100K is not at {}: run scripts/setup-data.sh (cargo build does), \
+             or set environment.recommender.path",
+            path.display()
+        ))),
+        SessionSource::Movielens100k => movielens::read(&path),
         SessionSource::Rees46 => {
             let (sessions, stats) = rees46::read(&path, config.group_by)?;
             tracing::info!(

@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use super::RecsysError;
-use super::sessions::{Purchase, Session};
+use super::sessions::{Purchase, Session, per_user};
 
 /// Where `scripts/setup-data.sh` puts the sample, in this checkout (or `$JSAE_DATA_DIR/instacart/`
 /// where that is set, as in the container image).
@@ -90,38 +90,27 @@ pub fn read(path: &Path) -> Result<Vec<Session>, RecsysError> {
             .or_default()
             .push((order, cart, product.to_owned(), days, hour));
     }
-    let mut ids: Vec<u64> = users.keys().copied().collect();
-    ids.sort_unstable();
-    Ok(ids
-        .into_iter()
-        .map(|user| {
-            let mut rows = users.remove(&user).unwrap_or_default();
-            rows.sort_by_key(|r| (r.0, r.1));
-            // a relative clock: days since the user's first order, the hour, the cart slot
-            let mut day = 0.0;
-            let mut last_order = None;
-            let purchases = rows
-                .into_iter()
-                .map(|(order, cart, product, days, hour)| {
-                    if last_order != Some(order) {
-                        if last_order.is_some() {
-                            day += days;
-                        }
-                        last_order = Some(order);
+    Ok(per_user(users, |mut rows| {
+        rows.sort_by_key(|r| (r.0, r.1));
+        // a relative clock: days since the user's first order, the hour, the cart slot
+        let mut day = 0.0;
+        let mut last_order = None;
+        rows.into_iter()
+            .map(|(order, cart, product, days, hour)| {
+                if last_order != Some(order) {
+                    if last_order.is_some() {
+                        day += days;
                     }
-                    Purchase {
-                        item_id: product,
-                        price: 0.0,
-                        time_unix_ms: (day * 86_400_000.0) as i64
-                            + i64::from(hour) * 3_600_000
-                            + i64::from(cart),
-                    }
-                })
-                .collect();
-            Session {
-                session_id: format!("user-{user}"),
-                purchases,
-            }
-        })
-        .collect())
+                    last_order = Some(order);
+                }
+                Purchase {
+                    item_id: product,
+                    price: 0.0,
+                    time_unix_ms: (day * 86_400_000.0) as i64
+                        + i64::from(hour) * 3_600_000
+                        + i64::from(cart),
+                }
+            })
+            .collect()
+    }))
 }

@@ -1,5 +1,5 @@
-//! The recommender's environment: purchase sessions from three sources (REES46 CSV, the
-//! Instacart sample, a seeded generator), the session store that `SubmitSessions` commits to
+//! The recommender's environment: purchase sessions from four sources (REES46 CSV, the
+//! Instacart sample, MovieLens-100K, a seeded generator), the session store that `SubmitSessions` commits to
 //! (`store`, with each call's `staging`), the n-gram MDP built from them (Shani et al.:
 //! `ngram_counts` made into `ngram`, kept current by `model_handle`, the store's part
 //! checkpointed by `model_checkpoint`), and the environment over it. The gRPC Recommender service is the `jsae-recommender` crate.
@@ -12,6 +12,7 @@ pub mod env;
 pub mod instacart;
 pub mod model_checkpoint;
 pub mod model_handle;
+pub mod movielens;
 pub mod ngram;
 pub mod ngram_counts;
 pub mod rees46;

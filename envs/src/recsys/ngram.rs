@@ -5,13 +5,13 @@
 
 use std::collections::HashMap;
 
-use jsae_env_spec::{RecommenderConfig, RewardOn};
+use jsae_env_spec::{Prices, RecommenderConfig, RewardOn};
 use rand::Rng;
 use rand_chacha::ChaCha8Rng;
 
 pub use super::catalogue::Catalogue;
 use super::ngram_counts::{NgramCounts, pair};
-use super::sessions::Session;
+use super::sessions::{Session, bytes_hash};
 
 /// Counts of the items seen after one context, with a cumulative table for sampling.
 #[derive(Debug, Clone, Default)]
@@ -68,8 +68,21 @@ pub struct NgramModel {
     smoothing: f64,
     mix: f64,
     boost: f64,
+    floor: f64,
     reward_on: RewardOn,
     sessions: usize,
+    covisit: HashMap<u32, Continuations>,
+}
+
+/// A price for an item the data has none for: log-normal with median 1 and sigma 0.75,
+/// drawn from the hash of its id (the same on every machine and in every version).
+fn synthetic_price(id: &str) -> f64 {
+    let h = bytes_hash(id.as_bytes());
+    // two uniforms in (0, 1) from the hash's halves, then Box-Muller
+    let u1 = ((h >> 32) as f64 + 0.5) / 4_294_967_296.0;
+    let u2 = ((h & 0xffff_ffff) as f64 + 0.5) / 4_294_967_296.0;
+    let z = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+    (0.75 * z).exp()
 }
 
 impl NgramModel {
@@ -105,7 +118,12 @@ impl NgramModel {
             .price_sum
             .iter()
             .zip(&sum.price_n)
-            .map(|(&s, &c)| if c > 0 { s / f64::from(c) } else { 1.0 })
+            .enumerate()
+            .map(|(slot, (&s, &c))| match (c, config.prices) {
+                (1.., _) => s / f64::from(c),
+                (0, Prices::Synthetic) => catalogue.id(slot as u32).map_or(1.0, synthetic_price),
+                (0, Prices::Data) => 1.0,
+            })
             .collect();
         Some(Self {
             catalogue,
@@ -121,8 +139,14 @@ impl NgramModel {
             smoothing: config.smoothing,
             mix: config.mix,
             boost: config.boost,
+            floor: config.recommend_floor,
             reward_on: config.reward_on,
             sessions: sum.sessions(),
+            covisit: sum
+                .covisit
+                .iter()
+                .map(|(&k, m)| (k, Continuations::from_map(m)))
+                .collect(),
         })
     }
 
@@ -180,24 +204,80 @@ impl NgramModel {
             + (1.0 - self.mix) * self.smoothed(self.after_two(before, last), item)
     }
 
+    /// The recommended item's share of the mass before renormalising, and the normaliser:
+    /// its probability `p` becomes `boost * p + floor`, so the mass is `1 + (boost - 1) p +
+    /// floor`.
+    fn boosted(&self, p_rec: f64) -> (f64, f64) {
+        let raised = self.boost * p_rec + self.floor;
+        (raised, 1.0 + (self.boost - 1.0) * p_rec + self.floor)
+    }
+
     /// P(next = item | before, last, the recommendation): the recommended item's
-    /// probability multiplied by the boost, then renormalised.
+    /// probability multiplied by the boost, the floor added, then renormalised.
     pub fn probability_recommended(&self, before: u32, last: u32, rec: u32, item: u32) -> f64 {
-        let p_rec = self.probability(before, last, rec);
-        let z = 1.0 + (self.boost - 1.0) * p_rec;
-        let p = self.probability(before, last, item);
+        let (raised, z) = self.boosted(self.probability(before, last, rec));
         if item == rec {
-            self.boost * p / z
+            raised / z
         } else {
-            p / z
+            self.probability(before, last, item) / z
         }
+    }
+
+    /// The expected reward of recommending each catalogue item (by slot) after `before`,
+    /// `last`: what the myopic greedy policy maximises.
+    pub fn expected_rewards(&self, before: u32, last: u32) -> Vec<f64> {
+        let n = self.catalogue.len() as u32;
+        let p: Vec<f64> = (0..n).map(|j| self.probability(before, last, j)).collect();
+        // every purchase's value, before the recommendation moves the mass
+        let all: f64 = match self.reward_on {
+            RewardOn::Any => (0..n).map(|j| p[j as usize] * self.value(j)).sum(),
+            RewardOn::Accepted => 0.0,
+        };
+        (0..n)
+            .map(|a| {
+                let (p_a, v_a) = (p[a as usize], self.value(a));
+                let (raised, z) = self.boosted(p_a);
+                match self.reward_on {
+                    RewardOn::Accepted => raised * v_a / z,
+                    RewardOn::Any => (all - p_a * v_a + raised * v_a) / z,
+                }
+            })
+            .collect()
+    }
+
+    /// Item-kNN by co-visitation: each catalogue item's (by slot) summed cosine similarity
+    /// `c(h, i) / sqrt(n_h n_i)` to the items `h` of `state` (oldest first, "none" slots
+    /// skipped), the last weighted 1, the one before 1/2, and so on; items bought within
+    /// `COVISIT_WINDOW` purchases of each other in a session are the co-visits `c`, `n` the
+    /// purchases. Popularity, a millionth of a similarity, breaks ties.
+    pub fn covisit_scores(&self, state: &[u32]) -> Vec<f64> {
+        let n = self.catalogue.len();
+        let top = (0..n as u32)
+            .map(|i| self.popularity(i))
+            .fold(0.0, f64::max)
+            .max(f64::MIN_POSITIVE);
+        let mut score: Vec<f64> = (0..n as u32)
+            .map(|i| 1e-6 * self.popularity(i) / top)
+            .collect();
+        let purchases = |i: u32| self.popularity.count_of(i) as f64;
+        for (back, &h) in state.iter().rev().enumerate() {
+            let Some(near) = self.covisit.get(&h) else {
+                continue;
+            };
+            let weight = 1.0 / (back + 1) as f64;
+            for (&i, &c) in near.next.iter().zip(&near.count) {
+                if let Some(s) = score.get_mut(i as usize) {
+                    *s += weight * f64::from(c) / (purchases(h) * purchases(i)).sqrt().max(1.0);
+                }
+            }
+        }
+        score
     }
 
     /// Samples the next purchase after `before`, `last` when `rec` is recommended.
     pub fn sample_next(&self, before: u32, last: u32, rec: u32, rng: &mut ChaCha8Rng) -> u32 {
-        let p_rec = self.probability(before, last, rec);
-        let q = self.boost * p_rec / (1.0 + (self.boost - 1.0) * p_rec);
-        if rng.random::<f64>() < q {
+        let (raised, z) = self.boosted(self.probability(before, last, rec));
+        if rng.random::<f64>() < raised / z {
             return rec;
         }
         // the rest of the mass is the unboosted distribution without `rec`
@@ -217,6 +297,11 @@ impl NgramModel {
     /// Samples a first purchase.
     pub fn sample_start(&self, rng: &mut ChaCha8Rng) -> u32 {
         self.start.sample(rng)
+    }
+
+    /// Samples a catalogue item uniformly.
+    pub fn sample_uniform(&self, rng: &mut ChaCha8Rng) -> u32 {
+        rng.random_range(0..self.catalogue.len() as u32)
     }
 
     /// The reward of a step that recommended `rec` and saw `bought` purchased.
@@ -328,5 +413,84 @@ mod tests {
             (model.reward(a, a), model.reward(a, b), model.reward(b, b)),
             (10.0, 0.0, 1.0)
         );
+    }
+
+    #[test]
+    fn the_floor_and_the_expected_rewards_follow_the_sampled_purchases() {
+        let s = sessions(&[
+            &["a", "b", "c", "a", "b", "d"],
+            &["b", "c", "c"],
+            &["a", "b", "c"],
+            &["d", "a", "b"],
+        ]);
+        for reward_on in [RewardOn::Accepted, RewardOn::Any] {
+            let config = RecommenderConfig {
+                top_n: 4,
+                boost: 2.0,
+                recommend_floor: 0.05,
+                reward_on,
+                prices: Prices::Synthetic,
+                ..RecommenderConfig::default()
+            };
+            let cat = Catalogue::most_purchased(s.iter(), 4);
+            let model = NgramModel::build(cat, s.iter(), &config).expect("builds");
+            let c = model.catalogue().clone();
+            let (a, b) = (c.slot("a").expect("a"), c.slot("b").expect("b"));
+            // "a" has its data price; the others a synthetic one, not 1
+            assert_eq!(model.value(a), 10.0);
+            assert!(model.value(b) > 0.0 && model.value(b) != 1.0);
+            let expected = model.expected_rewards(a, b);
+            let mut rng = ChaCha8Rng::seed_from_u64(9);
+            for rec in 0..4 {
+                let total: f64 = (0..4)
+                    .map(|j| model.probability_recommended(a, b, rec, j))
+                    .sum();
+                assert!((total - 1.0).abs() < 1e-12, "{total}");
+                // every recommendation is bought at least floor / (1 + boost - 1 + floor)
+                assert!(model.probability_recommended(a, b, rec, rec) > 0.05 / 2.05);
+                let draws = 100_000;
+                let got: f64 = (0..draws)
+                    .map(|_| model.reward(rec, model.sample_next(a, b, rec, &mut rng)))
+                    .sum::<f64>()
+                    / f64::from(draws);
+                let want = expected[rec as usize];
+                assert!(
+                    (got - want).abs() < 0.02 * want.max(1.0),
+                    "{reward_on:?} rec {rec}: {got} vs {want}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn item_knn_scores_the_items_bought_near_the_history() {
+        let s = sessions(&[
+            &["a", "b", "x"],
+            &["a", "b"],
+            &["c", "d"],
+            &["c", "d"],
+            &["d"],
+        ]);
+        let config = RecommenderConfig {
+            top_n: 5,
+            ..RecommenderConfig::default()
+        };
+        let cat = Catalogue::most_purchased(s.iter(), 5);
+        let model = NgramModel::build(cat, s.iter(), &config).expect("builds");
+        let c = model.catalogue().clone();
+        let slot = |id| c.slot(id).expect("in the catalogue");
+        let none = c.none();
+        let best = |state: &[u32]| {
+            let scores = model.covisit_scores(state);
+            (0..scores.len())
+                .max_by(|&i, &j| scores[i].total_cmp(&scores[j]))
+                .map(|i| i as u32)
+        };
+        assert_eq!(best(&[none, slot("c")]), Some(slot("d")));
+        assert_eq!(best(&[none, slot("a")]), Some(slot("b")));
+        // the last item weighs more than the one before it
+        assert_eq!(best(&[slot("a"), slot("c")]), Some(slot("d")));
+        // nothing known: popularity decides ("d" is bought three times)
+        assert_eq!(best(&[none, none]), Some(slot("d")));
     }
 }

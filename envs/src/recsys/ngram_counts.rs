@@ -1,5 +1,6 @@
 //! What the n-gram model is made of: counts of purchases over catalogue slots (item
-//! popularity, first purchases, the item after each 1-item and 2-item context, price sums).
+//! popularity, first purchases, the item after each 1-item and 2-item context, price sums,
+//! the items bought near each other for item-kNN).
 //! Counts add up, so the model's owner keeps them per source (the data, the session store),
 //! adds a session at a time as the store grows, and never holds the sessions themselves; the
 //! store's counts are also what its checkpoint saves (`model_checkpoint`).
@@ -35,7 +36,16 @@ pub struct NgramCounts {
     pub(super) price_n: Vec<u32>,
     /// Sessions that bought at least one catalogue item.
     pub(super) sessions: usize,
+    /// Co-visitation: for each item, the items bought within [`COVISIT_WINDOW`] purchases of
+    /// it in the same session, either side (itself included where bought again), each
+    /// pair of positions once. Sparse, so counts saved before it existed read as none.
+    #[serde(default)]
+    pub(super) covisit: HashMap<u32, HashMap<u32, u32>>,
 }
+
+/// How many purchases apart two purchases of a session may be and still count as visited
+/// together (item-kNN's co-visitation).
+pub const COVISIT_WINDOW: usize = 5;
 
 fn bump(map: &mut HashMap<u32, u32>, key: u32, by: u32) {
     let c = map.entry(key).or_insert(0);
@@ -60,6 +70,7 @@ impl NgramCounts {
             price_sum: vec![0.0; capacity],
             price_n: vec![0; capacity],
             sessions: 0,
+            covisit: HashMap::new(),
         }
     }
 
@@ -105,6 +116,12 @@ impl NgramCounts {
                     1,
                 );
             }
+            for &other in seq.iter().skip(t + 1).take(COVISIT_WINDOW) {
+                bump(self.covisit.entry(item).or_default(), other, 1);
+                if other != item {
+                    bump(self.covisit.entry(other).or_default(), item, 1);
+                }
+            }
         }
     }
 
@@ -126,6 +143,9 @@ impl NgramCounts {
             *into = into.saturating_add(*from);
         }
         self.sessions += other.sessions;
+        for (&k, from) in &other.covisit {
+            bump_all(self.covisit.entry(k).or_default(), from);
+        }
     }
 
     /// Whether the counts have the shape of a catalogue of `capacity` slots (a checkpoint read
@@ -180,5 +200,19 @@ mod tests {
             Some(&1)
         );
         assert_eq!(whole.price_n, vec![3, 2, 1, 0]);
+        // a: x y z x: x and y once apart, x and x three apart, both ways for a pair
+        let covisit = |a: u32, b: u32| whole.covisit.get(&a).and_then(|m| m.get(&b)).copied();
+        assert_eq!(covisit(0, 0), Some(1));
+        assert_eq!(
+            (covisit(0, 1), covisit(1, 0)),
+            (Some(3), Some(3)),
+            "x-y twice in a, once in b"
+        );
+        assert_eq!((covisit(2, 0), covisit(0, 2)), (Some(2), Some(2)));
+        // counts written before co-visitation existed read as none
+        let mut old = serde_json::to_value(&whole).expect("serialises");
+        old.as_object_mut().expect("a map").remove("covisit");
+        let back: NgramCounts = serde_json::from_value(old).expect("reads");
+        assert!(back.covisit.is_empty() && back.fits(4));
     }
 }

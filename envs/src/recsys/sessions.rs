@@ -40,6 +40,22 @@ pub struct Session {
     pub purchases: Vec<Purchase>,
 }
 
+/// One session per user, in order of user id, each named `user-N`, for the sources whose
+/// sessions are users: `purchases` turns one user's rows into their purchases, oldest first.
+pub(super) fn per_user<R>(
+    mut users: std::collections::HashMap<u64, Vec<R>>,
+    mut purchases: impl FnMut(Vec<R>) -> Vec<Purchase>,
+) -> Vec<Session> {
+    let mut ids: Vec<u64> = users.keys().copied().collect();
+    ids.sort_unstable();
+    ids.into_iter()
+        .map(|user| Session {
+            session_id: format!("user-{user}"),
+            purchases: purchases(users.remove(&user).unwrap_or_default()),
+        })
+        .collect()
+}
+
 /// A stable 64-bit hash of bytes: FNV-1a, mixed by SplitMix64's finaliser (FNV alone leaves
 /// the high bits of ids that differ in their last characters, `user-1`, `user-2`, ...,
 /// nearly equal). The same bytes give the same hash on every machine and in every version,
