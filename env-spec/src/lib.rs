@@ -128,7 +128,8 @@ pub struct RecommenderConfig {
     /// Where the sessions come from.
     pub source: SessionSource,
     /// The data file (instacart: empty means the sample `scripts/setup-data.sh` fetched
-    /// into `third_party/instacart/`; rees46: required, .csv or .csv.gz).
+    /// into `third_party/instacart/`; movielens100k: empty means its `ml-100k.inter` in
+    /// `third_party/movielens/`; rees46: required, .csv or .csv.gz).
     pub path: std::path::PathBuf,
     /// REES46 grouping of purchases into sessions.
     pub group_by: GroupBy,

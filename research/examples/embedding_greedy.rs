@@ -62,16 +62,31 @@ fn main() -> Result<()> {
             .chunks_exact(*factors)
             .map(|r| (r[factors - 2], r[factors - 1]))
             .collect();
-        let mut agree = [(0usize, 0usize); 2]; // (agreements, states): unlogged, logged
+        // an unlogged pair's hashed row is zero unless a logged pair owns its bucket
+        let buckets = config.embedding.recommender.pair_buckets.max(1);
+        let items = model.catalogue().len() as u32 + 1; // each factor's slots, "none" included
+        let bucket = |b: u32, l: u32| jsae_nn::pair_bucket(b, l + items, 0, buckets);
+        let owned: HashSet<usize> = logged.iter().map(|&(b, l)| bucket(b, l)).collect();
+        // (agreements, states, expected reward lost to the rule's item): unlogged pairs with
+        // a zero row, unlogged pairs with another pair's row, logged pairs
+        let mut agree = [(0usize, 0usize, 0.0f64); 3];
         let r = returns(&mut env, 2000, config.eval_seed(), "", |env, _| {
             let h = env.history();
             let a = pick(h);
-            let seen = usize::from(logged.contains(&(h[h.len() - 2], h[h.len() - 1])));
-            agree[seen].1 += 1;
-            agree[seen].0 += usize::from(Reference::MostLikely.best(&model, h) == a);
+            let (b, l) = (h[h.len() - 2], h[h.len() - 1]);
+            let kind = if logged.contains(&(b, l)) {
+                2
+            } else {
+                usize::from(owned.contains(&bucket(b, l)))
+            };
+            let rule = Reference::MostLikely.best(&model, h);
+            let expected = model.expected_rewards(b, l);
+            agree[kind].0 += usize::from(rule == a);
+            agree[kind].1 += 1;
+            agree[kind].2 += expected[rule as usize] - expected[a as usize];
             a
         });
-        let share = |(a, n): (usize, usize)| a as f64 / n.max(1) as f64;
+        let share = |(a, n, _): (usize, usize, f64)| a as f64 / n.max(1) as f64;
         println!(
             "{run}: the head's nearest item returns {:.3} (std {:.3}, 2,000 episodes); top-1 on \
              the {} logged purchases: head {:.3}, greedy rule {:.3}",
@@ -81,14 +96,20 @@ fn main() -> Result<()> {
             head_hits as f64 / next.len() as f64,
             rule_hits as f64 / next.len() as f64
         );
-        println!(
-            "  in its play the head recommends the rule's item in {:.3} of the {} states whose \
-             pair the logs hold, {:.3} of the {} others",
-            share(agree[1]),
-            agree[1].1,
-            share(agree[0]),
-            agree[0].1
-        );
+        for (kind, name) in [
+            (2, "whose pair the logs hold"),
+            (0, "whose pair they do not, its row zero"),
+            (1, "whose pair they do not, its row another pair's"),
+        ] {
+            println!(
+                "  states {name}: {} ({:.3} of its play), the rule's item in {:.3}, expected \
+                 reward lost to the rule {:.3} an episode",
+                agree[kind].1,
+                agree[kind].1 as f64 / agree.iter().map(|k| k.1).sum::<usize>().max(1) as f64,
+                share(agree[kind]),
+                agree[kind].2 / 2000.0
+            );
+        }
     }
     Ok(())
 }

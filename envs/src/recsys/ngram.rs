@@ -206,16 +206,21 @@ impl NgramModel {
 
     /// The recommended item's share of the mass before renormalising, and the normaliser:
     /// its probability `p` becomes `boost * p + floor`, so the mass is `1 + (boost - 1) p +
-    /// floor`.
-    fn boosted(&self, p_rec: f64) -> (f64, f64) {
-        let raised = self.boost * p_rec + self.floor;
-        (raised, 1.0 + (self.boost - 1.0) * p_rec + self.floor)
+    /// floor`. A slot no item holds yet gets no floor: nothing there can be bought.
+    fn boosted(&self, rec: u32, p_rec: f64) -> (f64, f64) {
+        let floor = if (rec as usize) < self.catalogue.len() {
+            self.floor
+        } else {
+            0.0
+        };
+        let raised = self.boost * p_rec + floor;
+        (raised, 1.0 + (self.boost - 1.0) * p_rec + floor)
     }
 
     /// P(next = item | before, last, the recommendation): the recommended item's
     /// probability multiplied by the boost, the floor added, then renormalised.
     pub fn probability_recommended(&self, before: u32, last: u32, rec: u32, item: u32) -> f64 {
-        let (raised, z) = self.boosted(self.probability(before, last, rec));
+        let (raised, z) = self.boosted(rec, self.probability(before, last, rec));
         if item == rec {
             raised / z
         } else {
@@ -236,7 +241,7 @@ impl NgramModel {
         (0..n)
             .map(|a| {
                 let (p_a, v_a) = (p[a as usize], self.value(a));
-                let (raised, z) = self.boosted(p_a);
+                let (raised, z) = self.boosted(a, p_a);
                 match self.reward_on {
                     RewardOn::Accepted => raised * v_a / z,
                     RewardOn::Any => (all - p_a * v_a + raised * v_a) / z,
@@ -278,7 +283,7 @@ impl NgramModel {
 
     /// Samples the next purchase after `before`, `last` when `rec` is recommended.
     pub fn sample_next(&self, before: u32, last: u32, rec: u32, rng: &mut ChaCha8Rng) -> u32 {
-        let (raised, z) = self.boosted(self.probability(before, last, rec));
+        let (raised, z) = self.boosted(rec, self.probability(before, last, rec));
         if rng.random::<f64>() < raised / z {
             return rec;
         }
@@ -461,6 +466,16 @@ mod tests {
                     "{reward_on:?} rec {rec}: {got} vs {want}"
                 );
             }
+            // a slot no item holds gets no floor: it is never bought
+            let wide = RecommenderConfig {
+                top_n: 6,
+                ..config.clone()
+            };
+            let cat = Catalogue::most_purchased(s.iter(), 6);
+            let model = NgramModel::build(cat, s.iter(), &wide).expect("builds");
+            assert_eq!(model.catalogue().len(), 4);
+            assert_eq!(model.probability_recommended(a, b, 5, 5), 0.0);
+            assert!((0..1000).all(|_| model.sample_next(a, b, 5, &mut rng) != 5));
         }
     }
 
