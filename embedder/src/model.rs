@@ -35,14 +35,8 @@ pub trait EmbeddingTraining {
     fn infer_action_embeddings(&self, states: &StateBatch, next: &StateBatch) -> Tensor<2>;
 
     /// The next-item loss alone: the mean cross-entropy of the item bought after each of
-    /// `states` (`items[i]` after row `i`) under the next-item head (None without it); with
-    /// `keep`, phi leaves out the pair rows of the states where it is false (pair dropout).
-    fn next_item_loss(
-        &self,
-        states: &StateBatch,
-        items: &[u32],
-        keep: Option<&[bool]>,
-    ) -> Option<Tensor<1>>;
+    /// `states` (`items[i]` after row `i`) under the next-item head (None without it).
+    fn next_item_loss(&self, states: &StateBatch, items: &[u32]) -> Option<Tensor<1>>;
 
     /// Copies every part of `source` whose shape matches this model's (both of the same
     /// representation); returns the names of the parts copied.
@@ -106,17 +100,8 @@ impl EmbeddingTraining for EmbeddingModel {
         baselines::infer_action_embeddings(self, states, next)
     }
 
-    fn next_item_loss(
-        &self,
-        states: &StateBatch,
-        items: &[u32],
-        keep: Option<&[bool]>,
-    ) -> Option<Tensor<1>> {
-        let x = match keep {
-            Some(keep) => self.embed_states_keeping_pairs(states, keep),
-            None => self.embed_states(states),
-        };
-        let logits = self.next_item_logits(x)?;
+    fn next_item_loss(&self, states: &StateBatch, items: &[u32]) -> Option<Tensor<1>> {
+        let logits = self.next_item_logits(self.embed_states(states))?;
         let target = index_column(self, items.iter().map(|&i| i64::from(i)).collect());
         Some(cross_entropy(logits, target))
     }

@@ -28,15 +28,13 @@ pub trait RepresentationModel: std::fmt::Debug + Send {
     /// reconstruction; RA: `-log f(a | e(s, s'))` and 0).
     fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32);
     /// One optimiser step on the next-item loss alone (logged purchases: `items[i]` bought
-    /// after row `i` of `states`; the pair rows of the states where `keep` is false left
-    /// out); the loss before the step, None for a model without the next-item head (nothing
-    /// trained).
+    /// after row `i` of `states`); the loss before the step, None for a model without the
+    /// next-item head (nothing trained).
     fn train_next_item_step(
         &mut self,
         _optim: &mut ModuleOptimizer,
         _states: &StateBatch,
         _items: &[u32],
-        _keep: Option<&[bool]>,
         _lr: f64,
     ) -> Option<f32> {
         None
@@ -83,10 +81,9 @@ impl RepresentationModel for EmbeddingModel {
         optim: &mut ModuleOptimizer,
         states: &StateBatch,
         items: &[u32],
-        keep: Option<&[bool]>,
         lr: f64,
     ) -> Option<f32> {
-        let loss = self.next_item_loss(states, items, keep)?;
+        let loss = self.next_item_loss(states, items)?;
         let grads = GradientsParams::from_grads(loss.backward(), self.net());
         let net = optim.step(lr, self.net().clone(), grads);
         self.set_net(net);

@@ -34,11 +34,6 @@ pub struct RecommenderEmbeddingConfig {
     /// The logged pre-training's learning rate at its first pass, annealed linearly to 0 by
     /// its last (0: `embedding.lr`, constant).
     pub logged_pretrain_lr: f64,
-    /// Share of the logged states whose pair row is left out in each pass of the logged
-    /// pre-training (0: none): the item rows then learn what follows the items alone, which
-    /// is all a state whose pair the logs never held has (its pair row zero). In [0, 1);
-    /// needs `pair_buckets` and `logged_pretrain_epochs`.
-    pub pair_dropout: f64,
 }
 
 impl Default for RecommenderEmbeddingConfig {
@@ -48,7 +43,6 @@ impl Default for RecommenderEmbeddingConfig {
             pair_buckets: 0,
             logged_pretrain_epochs: 0,
             logged_pretrain_lr: 0.0,
-            pair_dropout: 0.0,
         }
     }
 }
@@ -56,10 +50,7 @@ impl Default for RecommenderEmbeddingConfig {
 impl RecommenderEmbeddingConfig {
     /// Whether any of them is on (only the recommender's JSAE may set them).
     pub fn any(&self) -> bool {
-        self.next_item_coef > 0.0
-            || self.pair_buckets > 0
-            || self.logged_pretrain_epochs > 0
-            || self.pair_dropout > 0.0
+        self.next_item_coef > 0.0 || self.pair_buckets > 0 || self.logged_pretrain_epochs > 0
     }
 
     /// Whether the model has the next-item head (and the policy reads its output).
@@ -93,19 +84,6 @@ impl RecommenderEmbeddingConfig {
                 "embedding.recommender.logged_pretrain_lr must be finite and >= 0, got {}",
                 self.logged_pretrain_lr
             ));
-        }
-        if !(0.0..1.0).contains(&self.pair_dropout) {
-            return Err(format!(
-                "embedding.recommender.pair_dropout must be in [0, 1), got {}",
-                self.pair_dropout
-            ));
-        }
-        if self.pair_dropout > 0.0 && (self.pair_buckets == 0 || self.logged_pretrain_epochs == 0) {
-            return Err(
-                "embedding.recommender.pair_dropout needs pair_buckets > 0 and \
-                 logged_pretrain_epochs > 0 (it leaves pair rows out of the logged pre-training)"
-                    .into(),
-            );
         }
         if self.logged_pretrain_epochs > 0 && !self.next_item() {
             return Err(

@@ -288,9 +288,7 @@ impl EmbeddingModel {
         Ok(())
     }
 
-    /// The model's input for `states`; with `keep`, the pair rows of the states where it is
-    /// false are left out.
-    fn state_tensor(&self, states: &StateBatch, keep: Option<&[bool]>) -> StateInput {
+    fn state_tensor(&self, states: &StateBatch) -> StateInput {
         match states {
             StateBatch::Categorical { factors, data } => {
                 let idx: Vec<i64> = data
@@ -298,13 +296,7 @@ impl EmbeddingModel {
                     .enumerate()
                     .map(|(i, &v)| i64::from(v + self.offsets[i % factors]))
                     .collect();
-                let pairs = self.pair_rows(&idx, *factors).map(|rows| {
-                    let keep = keep.map(|keep| {
-                        let mask: Vec<f32> = keep.iter().map(|&k| f32::from(u8::from(k))).collect();
-                        nn::tensor2(mask, keep.len(), 1, &self.device)
-                    });
-                    Box::new((rows, keep))
-                });
+                let pairs = self.pair_rows(&idx, *factors).map(Box::new);
                 let n = idx.len();
                 StateInput::Indices(
                     Tensor::from_data(TensorData::new(idx, [n]), &self.device),
@@ -332,17 +324,7 @@ impl EmbeddingModel {
 
     /// phi: `[batch] states -> [batch, m]`.
     pub fn embed_states(&self, states: &StateBatch) -> Tensor<2> {
-        let input = self.state_tensor(states, None);
-        self.phi(input)
-    }
-
-    /// phi without the pair rows of the states where `keep` (one per state) is false: the
-    /// logged pre-training's pair dropout, which makes the item rows learn what follows
-    /// the items alone, all that a state whose pair the logs never held has (its pair row
-    /// zero). The same as [`Self::embed_states`] without pair rows.
-    pub fn embed_states_keeping_pairs(&self, states: &StateBatch, keep: &[bool]) -> Tensor<2> {
-        assert_eq!(keep.len(), states.len(), "one keep flag per state");
-        let input = self.state_tensor(states, Some(keep));
+        let input = self.state_tensor(states);
         self.phi(input)
     }
 
@@ -358,11 +340,8 @@ impl EmbeddingModel {
                         .sum_dim(1)
                         .reshape([n / factors, m])
                 };
-                match (pairs.map(|p| *p), &self.net.phi_pair) {
-                    (Some((rows, None)), Some(table)) => summed + table.val().select(0, rows),
-                    (Some((rows, Some(keep))), Some(table)) => {
-                        summed + table.val().select(0, rows) * keep
-                    }
+                match (pairs, &self.net.phi_pair) {
+                    (Some(pairs), Some(pair_table)) => summed + pair_table.val().select(0, *pairs),
                     _ => summed,
                 }
             }
@@ -455,12 +434,9 @@ impl EmbeddingModel {
     }
 }
 
-type PairInput = (Tensor<1, Int>, Option<Tensor<2>>);
-
 enum StateInput {
-    /// Every factor's column, the factors, each state's pair row (with pair rows) and,
-    /// where some are left out, `[batch, 1]` ones for the rows kept and zeros for the others.
-    Indices(Tensor<1, Int>, usize, Option<Box<PairInput>>),
+    /// Every factor's column, the factors, each state's pair row (with pair rows).
+    Indices(Tensor<1, Int>, usize, Option<Box<Tensor<1, Int>>>),
     Values(Tensor<2>),
 }
 

@@ -8,7 +8,6 @@
 use std::sync::Arc;
 
 use jsae_wire::StateBatch;
-use rand::Rng;
 use rand::seq::SliceRandom;
 
 use super::EmbedderTrainer;
@@ -128,30 +127,20 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             lr if lr > 0.0 => (lr, true),
             _ => (self.config.lr, false),
         };
-        let dropout = self.config.recommender.pair_dropout;
         let mut losses = Vec::with_capacity(epochs);
         let started = std::time::Instant::now();
         let mut logged_at = started;
+        let chunks = n.div_ceil(bs);
         for epoch in 1..=epochs {
             order.shuffle(&mut self.rng);
             let (mut sum, mut count) = (0.0, 0);
-            let chunks = n.div_ceil(bs);
             for (k, rows) in order.chunks(bs).enumerate() {
                 let done = ((epoch - 1) * chunks + k) as f64 / (epochs * chunks) as f64;
                 let lr = if anneal { lr0 * (1.0 - done) } else { lr0 };
                 let (states, items) = logged.gather(rows);
-                let keep: Option<Vec<bool>> = (dropout > 0.0).then(|| {
-                    rows.iter()
-                        .map(|_| !self.rng.random_bool(dropout))
-                        .collect()
-                });
-                let step = self.model.train_next_item_step(
-                    &mut self.optim.0,
-                    &states,
-                    &items,
-                    keep.as_deref(),
-                    lr,
-                );
+                let step = self
+                    .model
+                    .train_next_item_step(&mut self.optim.0, &states, &items, lr);
                 if let Some(l) = step {
                     sum += l;
                     count += 1;
@@ -214,10 +203,6 @@ mod tests {
     }
 
     fn trainer(epochs: usize) -> EmbedderTrainer {
-        trainer_dropping(epochs, 0.0)
-    }
-
-    fn trainer_dropping(epochs: usize, pair_dropout: f64) -> EmbedderTrainer {
         let mut config = EmbeddingConfig {
             state_dim: 8,
             action_dim: 6,
@@ -230,12 +215,6 @@ mod tests {
         config.recommender.next_item_coef = 1.0;
         config.recommender.pair_buckets = 4096;
         config.recommender.logged_pretrain_epochs = epochs;
-        config.recommender.pair_dropout = pair_dropout;
-        if pair_dropout > 0.0 {
-            // as the recommender's JSAE: the logs annealed, then a gentle random-play pass
-            config.recommender.logged_pretrain_lr = config.lr;
-            config.lr = 1e-4;
-        }
         let states = StateSpace::Categorical {
             sizes: vec![ITEMS as usize + 1; 2],
         };
@@ -274,16 +253,12 @@ mod tests {
         }
     }
 
-    /// The share of `logs` whose bought item is the one nearest to the head's output (with
-    /// `pairs` false, from phi without its pair rows).
+    /// The share of `logs` whose bought item is the one nearest to the head's output.
     fn hits(t: &EmbedderTrainer, logs: &LoggedItems) -> f64 {
-        hits_with(t, logs, true)
-    }
-
-    fn hits_with(t: &EmbedderTrainer, logs: &LoggedItems, pairs: bool) -> f64 {
-        let keep = vec![pairs; logs.items.len()];
-        let x = t.model().embed_states_keeping_pairs(&logs.states, &keep);
-        let logits = t.model().next_item_logits(x).expect("the head");
+        let logits = t
+            .model()
+            .next_item_logits(t.model().embed_states(&logs.states))
+            .expect("the head");
         let logits = to_vec(logits);
         let n = ITEMS as usize;
         let right = logits
@@ -305,15 +280,11 @@ mod tests {
         for epochs in [0, 40] {
             let mut t = trainer(epochs);
             t.set_logged(logged.clone()).expect("fits");
-            let before = t
-                .model()
-                .next_item_loss(&logged.states, &logged.items, None);
+            let before = t.model().next_item_loss(&logged.states, &logged.items);
             let before = before.expect("the head").into_scalar::<f32>();
             t.ingest(&random_play(&mut rng)).expect("valid");
             t.poll().expect("serialises").expect("pre-trained");
-            let after = t
-                .model()
-                .next_item_loss(&logged.states, &logged.items, None);
+            let after = t.model().next_item_loss(&logged.states, &logged.items);
             results.push((
                 before,
                 after.expect("head").into_scalar::<f32>(),
@@ -330,45 +301,6 @@ mod tests {
             without.2 < 0.3,
             "random play alone does not teach it: {without:?}"
         );
-    }
-
-    /// Logs where the item bought follows the last item alone, `2 l mod ITEMS`, except
-    /// after pairs whose earlier item is 0, where it is `l + 1`.
-    fn logs_of_the_last_item(rows: usize, rng: &mut ChaCha8Rng) -> LoggedItems {
-        let mut logs = logs(rows, rng);
-        if let StateBatch::Categorical { data, .. } = &logs.states {
-            for (item, pair) in logs.items.iter_mut().zip(data.chunks_exact(2)) {
-                let (b, l) = (pair[0], pair[1]);
-                *item = if b == 0 {
-                    (l + 1) % ITEMS
-                } else {
-                    2 * l % ITEMS
-                };
-            }
-        }
-        logs
-    }
-
-    #[test]
-    fn pair_dropout_makes_the_item_rows_predict_without_the_pair() {
-        let mut rng = ChaCha8Rng::seed_from_u64(6);
-        let logged = Arc::new(logs_of_the_last_item(2048, &mut rng));
-        let mut got = Vec::new();
-        // (1e-9: the same learning rates as 0.5, no row ever dropped)
-        for dropout in [1e-9, 0.5] {
-            let mut t = trainer_dropping(40, dropout);
-            t.set_logged(logged.clone()).expect("fits");
-            t.ingest(&random_play(&mut rng)).expect("valid");
-            t.poll().expect("serialises").expect("pre-trained");
-            got.push((hits_with(&t, &logged, true), hits_with(&t, &logged, false)));
-        }
-        let [(pairs_off, items_off), (pairs_on, items_on)] = got[..] else {
-            unreachable!("two trainers")
-        };
-        // both fit the logs with the pair rows; only with dropout do the item rows alone
-        // carry the pairs' exception too (without: about the last item's rule, 11 in 12)
-        assert!(pairs_off > 0.95 && pairs_on > 0.95, "{got:?}");
-        assert!(items_on > 0.95 && items_on > items_off, "{got:?}");
     }
 
     #[test]
