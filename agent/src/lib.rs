@@ -9,13 +9,11 @@
 
 pub mod embedding;
 pub mod greedy;
-mod nearest;
 pub mod policy;
 pub mod prior;
 mod weights;
 
 pub use embedding::{Embedding, EmbeddingModel, EmbeddingNet};
-pub use nearest::NearestAction;
 pub use policy::{Policy, PolicyHead, PolicyNet, PolicyPrior, policy_shape};
 pub use prior::CountPrior;
 pub use weights::{SwapError, Weights};

@@ -1,9 +1,10 @@
 //! `jsae bench`: PPO update throughput and batch-1 / batch-64 inference latency on both
 //! burn devices, measured in one run so the ratios between them are meaningful; the
 //! PPO update per head against the GEMM peak (`learner`), transport (`transport`), MuJoCo
-//! stepping (`mujoco`), Recommender (`recommender`) and end-to-end actor scaling
-//! (`scaling`) benchmarks are the submodules.
+//! stepping (`mujoco`), Recommender (`recommender`), catalogue scale (`catalogue`) and
+//! end-to-end actor scaling (`scaling`) benchmarks are the submodules.
 
+pub mod catalogue;
 pub mod learner;
 pub mod mujoco;
 pub mod recommender;
@@ -269,6 +270,16 @@ pub struct BenchArgs {
     /// Environments per actor in the MuJoCo actor measurement.
     #[arg(long, default_value_t = 16)]
     pub envs: usize,
+    /// Only the catalogue-scale measurements: generated catalogues of `--items` items, f by
+    /// approximate nearest neighbour against the exact scan.
+    #[arg(long)]
+    pub catalogue: bool,
+    /// The catalogue sizes [default: 10000, 100000, 1000000].
+    #[arg(long, value_delimiter = ',', requires = "catalogue")]
+    pub items: Vec<u32>,
+    /// One JSON object per catalogue size and line, instead of a table.
+    #[arg(long, requires = "catalogue")]
+    pub json: bool,
 }
 
 /// Runs `jsae bench`: the measurements its flags ask for, printed as they are made.
@@ -284,7 +295,24 @@ pub fn main(args: BenchArgs) -> std::process::ExitCode {
         mujoco,
         recommender,
         envs,
+        catalogue,
+        items,
+        json,
     } = args;
+    if catalogue {
+        let sizes = if items.is_empty() {
+            crate::catalogue::DEFAULT_ITEMS.to_vec()
+        } else {
+            items
+        };
+        return match crate::catalogue::run(&sizes, json, quick) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("jsae bench --catalogue: {e:#}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     if scaling {
         if actors.contains(&0) {
             eprintln!("--actors: every count must be at least 1");

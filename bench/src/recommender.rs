@@ -103,7 +103,8 @@ fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>
     Ok((Arc::new(rec), histories))
 }
 
-fn percentile(sorted: &[f64], q: f64) -> f64 {
+/// The `q` quantile of sorted values (nearest rank), NaN when there are none.
+pub(crate) fn percentile(sorted: &[f64], q: f64) -> f64 {
     if sorted.is_empty() {
         return f64::NAN;
     }
@@ -258,7 +259,7 @@ fn fixed_load(
     Ok((total - warm, answered, latencies))
 }
 
-fn rss_mib() -> f64 {
+pub(crate) fn rss_mib() -> f64 {
     std::fs::read_to_string("/proc/self/status")
         .ok()
         .and_then(|s| {

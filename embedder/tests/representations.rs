@@ -3,7 +3,7 @@
 //! way actors decode) far above chance, for discrete and continuous actions. A warm start
 //! carries over exactly the parts whose shapes match.
 
-use jsae_agent::NearestAction;
+use jsae_action_index::NearestAction;
 use jsae_embedder::{EmbedderTrainer, EmbeddingConfig, EmbeddingTraining, replay::Minibatch};
 use jsae_nn::{self as nn, DeviceKind};
 use jsae_run_dir::InitSource;

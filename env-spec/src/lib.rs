@@ -78,6 +78,9 @@ pub enum SessionSource {
     /// `scripts/setup-data.sh`: a user's ratings in time order form one session (a rating
     /// counts as a purchase), so the held-out split is by user.
     Movielens100k,
+    /// A generated catalogue of up to millions of items, in categories, with co-purchase
+    /// partners (`[environment.recommender.catalogue]`; docs/src/recommender/catalogue-scale.md).
+    Catalogue,
 }
 
 /// How REES46 purchases are grouped into sessions.
@@ -174,6 +177,8 @@ pub struct RecommenderConfig {
     pub holdout: f64,
     /// The synthetic source.
     pub synthetic: SyntheticConfig,
+    /// The generated large catalogue (`source = "catalogue"`).
+    pub catalogue: LargeCatalogueConfig,
 }
 
 impl Default for RecommenderConfig {
@@ -197,6 +202,7 @@ impl Default for RecommenderConfig {
             refresh_seconds: 60,
             holdout: 0.1,
             synthetic: SyntheticConfig::default(),
+            catalogue: LargeCatalogueConfig::default(),
         }
     }
 }
@@ -226,6 +232,70 @@ impl Default for SyntheticConfig {
             mean_len: 8.0,
             seed: 7,
         }
+    }
+}
+
+/// The shape of a generated catalogue and its sessions.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default, deny_unknown_fields)]
+pub struct LargeCatalogueConfig {
+    /// Distinct items.
+    pub items: u32,
+    /// Sessions per item (OTTO's train split has 6.95).
+    pub sessions_per_item: f64,
+    /// Mean purchases per session (lengths are log-normal, at least 1).
+    pub mean_len: f64,
+    /// Items per category, on average (category sizes are uneven).
+    pub items_per_category: u32,
+    /// Zipf exponent of item popularity.
+    pub zipf: f64,
+    /// Seed of the generator.
+    pub seed: u64,
+}
+
+impl Default for LargeCatalogueConfig {
+    fn default() -> Self {
+        Self {
+            items: 10_000,
+            sessions_per_item: 2.0,
+            mean_len: 10.0,
+            items_per_category: 500,
+            zipf: 1.0,
+            seed: 11,
+        }
+    }
+}
+
+impl LargeCatalogueConfig {
+    /// Sessions the generator makes.
+    pub fn sessions(&self) -> u64 {
+        (f64::from(self.items) * self.sessions_per_item).round() as u64
+    }
+
+    /// Checks the settings, with the reason when they are unusable.
+    pub fn check(&self) -> Result<(), String> {
+        if self.items < 2 || self.items > 50_000_000 {
+            return Err(format!("items must be in [2, 5e7], not {}", self.items));
+        }
+        if !(self.sessions_per_item > 0.0 && self.sessions_per_item <= 1e3) {
+            return Err(format!(
+                "sessions_per_item must be in (0, 1000], not {}",
+                self.sessions_per_item
+            ));
+        }
+        if !(self.mean_len >= 1.0 && self.mean_len <= 1e3) {
+            return Err(format!(
+                "mean_len must be in [1, 1000], not {}",
+                self.mean_len
+            ));
+        }
+        if self.items_per_category == 0 {
+            return Err("items_per_category must be at least 1".into());
+        }
+        if !(self.zipf >= 0.0 && self.zipf <= 4.0) {
+            return Err(format!("zipf must be in [0, 4], not {}", self.zipf));
+        }
+        Ok(())
     }
 }
 
@@ -376,6 +446,9 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     if g.items < 2 || g.sessions == 0 || !(g.mean_len >= 1.0 && g.mean_len.is_finite()) {
         return Err("recommender.synthetic needs items >= 2, sessions >= 1, mean_len >= 1".into());
     }
+    r.catalogue
+        .check()
+        .map_err(|e| format!("recommender.catalogue.{e}"))?;
     Ok(())
 }
 

@@ -44,6 +44,12 @@ pub struct EmbeddingConfig {
     pub transition_hidden: usize,
     /// Hidden width of the continuous-action decoder f.
     pub decoder_hidden: usize,
+    /// Discrete actions from which f searches an approximate nearest-neighbour index (an
+    /// HNSW graph whose search width is calibrated to recall@10 0.96 against the exact scan
+    /// when an embedding version arrives) instead of scanning every action (0: always scan).
+    /// The exact scan of 100,000 actions takes about 2 ms a lookup on one core, the index
+    /// 0.09 ms (`jsae bench --catalogue`).
+    pub approx_nearest_from: usize,
     /// Transitions the replay buffer keeps (oldest dropped first).
     pub replay_capacity: usize,
     /// Continuous updates: new transitions between two updates (0 turns them off).
@@ -78,6 +84,7 @@ impl Default for EmbeddingConfig {
             pretrain_epochs: 30,
             transition_hidden: 0,
             decoder_hidden: 64,
+            approx_nearest_from: 50_000,
             replay_capacity: 200_000,
             update_every: 20_480,
             update_steps: 50,

@@ -29,8 +29,8 @@ pub use flags::{
     EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
 };
 pub use jsae_env_spec::{
-    EnvConfig, EnvName, GridworldConfig, GroupBy, MujocoConfig, Prices, RecommenderConfig,
-    RewardOn, SessionSource, SlotmachineConfig, StartRule, SyntheticConfig,
+    EnvConfig, EnvName, GridworldConfig, GroupBy, LargeCatalogueConfig, MujocoConfig, Prices,
+    RecommenderConfig, RewardOn, SessionSource, SlotmachineConfig, StartRule, SyntheticConfig,
     gridworld_action_motions, validate_env_config,
 };
 pub use jsae_nn::DeviceKind;

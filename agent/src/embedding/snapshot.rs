@@ -8,14 +8,14 @@ use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use super::EmbeddingModel;
-use crate::NearestAction;
+use jsae_action_index::{ActionIndex, ApproxSettings};
 use jsae_nn::{self as nn, RecordError};
 
 /// The inference side of the embedding model, swapped in whole when a snapshot arrives.
 #[derive(Debug, Clone)]
 pub struct Embedding {
     model: EmbeddingModel,
-    nearest: Option<NearestAction>,
+    nearest: Option<ActionIndex>,
     version: u64,
 }
 
@@ -35,7 +35,16 @@ impl Embedding {
         model.load_bytes(&snapshot.bytes)?;
         let nearest = model
             .action_table()
-            .map(|t| NearestAction::new(&nn::to_vec(t), config.action_dim));
+            .map(|t| {
+                ActionIndex::build(
+                    &nn::to_vec(t),
+                    config.action_dim,
+                    config.approx_nearest_from,
+                    &ApproxSettings::default(),
+                )
+            })
+            .transpose()
+            .map_err(|e| RecordError(format!("f's action index: {e}")))?;
         Ok(Self {
             model,
             nearest,
@@ -94,7 +103,7 @@ impl Embedding {
     }
 
     /// The nearest-neighbour index over actions (discrete actions only).
-    pub fn nearest(&self) -> Option<&NearestAction> {
+    pub fn nearest(&self) -> Option<&ActionIndex> {
         self.nearest.as_ref()
     }
 }

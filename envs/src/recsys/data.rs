@@ -6,6 +6,7 @@ use std::path::PathBuf;
 
 use jsae_env_spec::{RecommenderConfig, SessionSource};
 
+use super::large_catalogue::LargeCatalogue;
 use super::sessions::{Session, id_hash};
 use super::{RecsysError, instacart, movielens, rees46, synthetic};
 
@@ -15,7 +16,9 @@ pub fn data_path(config: &RecommenderConfig) -> PathBuf {
         _ if !config.path.as_os_str().is_empty() => config.path.clone(),
         SessionSource::Instacart => instacart::default_path(),
         SessionSource::Movielens100k => movielens::default_path(),
-        SessionSource::Rees46 | SessionSource::Synthetic => config.path.clone(),
+        SessionSource::Rees46 | SessionSource::Synthetic | SessionSource::Catalogue => {
+            config.path.clone()
+        }
     }
 }
 
@@ -24,6 +27,13 @@ pub fn load_sessions(config: &RecommenderConfig) -> Result<Vec<Session>, RecsysE
     let path = data_path(config);
     match config.source {
         SessionSource::Synthetic => Ok(synthetic::generate(&config.synthetic)),
+        SessionSource::Catalogue => {
+            let catalogue = LargeCatalogue::new(&config.catalogue)
+                .map_err(|e| RecsysError::Data(format!("recommender.catalogue.{e}")))?;
+            Ok((0..catalogue.sessions())
+                .map(|s| catalogue.session_record(s))
+                .collect())
+        }
         SessionSource::Instacart if !path.exists() => Err(RecsysError::Data(format!(
             "the Instacart sample is not at {}: run scripts/setup-data.sh (cargo build does), \
              or set environment.recommender.path",

@@ -1,5 +1,6 @@
-//! The recommender's environment: purchase sessions from four sources (REES46 CSV, the
-//! Instacart sample, MovieLens-100K, a seeded generator), the session store that `SubmitSessions` commits to
+//! The recommender's environment: purchase sessions from five sources (REES46 CSV, the
+//! Instacart sample, MovieLens-100K, a seeded generator, a generated large catalogue:
+//! `large_catalogue`), the session store that `SubmitSessions` commits to
 //! (`store`, with each call's `staging`), the n-gram MDP built from them (Shani et al.:
 //! `ngram_counts` made into `ngram`, kept current by `model_handle`, the store's part
 //! checkpointed by `model_checkpoint`), and the environment over it. The gRPC Recommender service is the `jsae-recommender` crate.
@@ -10,6 +11,7 @@ mod catalogue;
 pub mod data;
 pub mod env;
 pub mod instacart;
+pub mod large_catalogue;
 pub mod model_checkpoint;
 pub mod model_handle;
 pub mod movielens;

@@ -91,22 +91,40 @@ impl NearestAction {
         let mut dist = Vec::new();
         self.distances(e, rows, &mut dist);
         let order = |a: &(u32, f32), b: &(u32, f32)| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0));
-        let mut all: Vec<(u32, f32)> = dist
-            .iter()
-            .enumerate()
-            .map(|(a, &v)| (a as u32, v))
-            .collect();
-        let k = k.min(all.len());
-        if k == 0 {
-            return Vec::new();
-        }
-        all.select_nth_unstable_by(k - 1, order);
-        all.truncate(k);
-        all.sort_by(order);
-        all.iter_mut().for_each(|(_, v)| *v = v.sqrt());
-        all
+        let k = k.min(dist.len());
+        let mut best: Vec<(u32, f32)> = if k == 0 {
+            Vec::new()
+        } else if k <= SMALL_K {
+            // one pass keeping the k best in order: no table-sized buffer besides `dist`
+            let mut best = Vec::with_capacity(k + 1);
+            for (a, &v) in dist.iter().enumerate() {
+                let x = (a as u32, v);
+                if best.len() == k && order(&x, &best[k - 1]).is_ge() {
+                    continue;
+                }
+                let at = best.partition_point(|y| order(y, &x).is_lt());
+                best.insert(at, x);
+                best.truncate(k);
+            }
+            best
+        } else {
+            let mut all: Vec<(u32, f32)> = dist
+                .iter()
+                .enumerate()
+                .map(|(a, &v)| (a as u32, v))
+                .collect();
+            all.select_nth_unstable_by(k - 1, order);
+            let mut best = all[..k].to_vec();
+            best.sort_by(order);
+            best
+        };
+        best.iter_mut().for_each(|(_, v)| *v = v.sqrt());
+        best
     }
 }
+
+/// Up to this many neighbours, [`NearestAction::k_nearest`] keeps them in one ordered pass.
+const SMALL_K: usize = 64;
 
 #[cfg(test)]
 mod tests {
@@ -157,6 +175,32 @@ mod tests {
             let within = index.k_nearest(&batch[..d], n, n / 2);
             assert_eq!(within.len(), n / 2);
             assert!(within.iter().all(|(a, _)| (*a as usize) < n / 2));
+        }
+    }
+
+    #[test]
+    fn k_nearest_equals_a_full_sort_for_every_k() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        // values on a coarse grid, so that distances tie often
+        let (n, d) = (500, 2);
+        let table: Vec<f32> = (0..n * d).map(|_| rng.random_range(0..6) as f32).collect();
+        let index = NearestAction::new(&table, d);
+        for k in [1, 10, SMALL_K, SMALL_K + 1, 200, n] {
+            let e = [2.5, 1.0];
+            let mut want: Vec<(u32, f32)> = table
+                .chunks_exact(d)
+                .enumerate()
+                .map(|(a, r)| (a as u32, (r[0] - e[0]).powi(2) + (r[1] - e[1]).powi(2)))
+                .collect();
+            want.sort_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
+            want.truncate(k);
+            want.iter_mut().for_each(|(_, v)| *v = v.sqrt());
+            let got = index.k_nearest(&e, k, n);
+            assert_eq!(got, want, "k = {k}");
+            assert!(
+                got.capacity() <= k.max(SMALL_K) + 1,
+                "no table-sized buffer kept"
+            );
         }
     }
 }

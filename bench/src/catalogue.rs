@@ -1,0 +1,219 @@
+//! `jsae bench --catalogue [--items LIST] [--json]`: the recommender at catalogue scale, one
+//! row per size: the generated catalogue's sessions (`jsae_envs::recsys::large_catalogue`),
+//! and f over its items, the approximate index (build time, recall@10 against the exact scan,
+//! search latency) beside the exact scan measured in the same run, one thread each.
+//!
+//! The item embeddings are a stand-in until the embedder trains at these sizes: each item at
+//! its category's centre plus noise (a trained g groups items bought together, which the
+//! generator keeps mostly within categories). The rows say so (`embeddings`).
+
+use std::time::Instant;
+
+use jsae_action_index::{
+    ApproxNearest, ApproxSettings, NearestAction, calibration_queries, recall,
+};
+use jsae_envs::recsys::large_catalogue::{
+    LargeCatalogue, LargeCatalogueConfig, OTTO_EVENTS, OTTO_ITEMS, OTTO_SESSIONS,
+};
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+use serde::Serialize;
+
+use crate::recommender::percentile;
+
+/// Width of the action embedding (the recommender JSAE's default `action_dim`).
+pub const EMBEDDING_DIM: usize = 64;
+/// Items asked for per recommendation.
+const K: usize = 10;
+
+/// One catalogue size's measurements.
+#[derive(Debug, Clone, Serialize)]
+pub struct CatalogueRow {
+    /// Items in the catalogue.
+    pub items: u64,
+    /// Sessions generated.
+    pub sessions: u64,
+    /// Purchases over all sessions.
+    pub events: u64,
+    /// Mean purchases per session.
+    pub events_per_session: f64,
+    /// Share of consecutive purchases within one category.
+    pub same_category_share: f64,
+    /// Share of purchases going to the top 1% of items.
+    pub top_1pct_share: f64,
+    /// Seconds to generate and count every session.
+    pub generate_s: f64,
+    /// Where the item embeddings came from.
+    pub embeddings: &'static str,
+    /// Seconds to build the approximate index (threads: the machine's cores), calibration
+    /// included.
+    pub ann_build_s: f64,
+    /// Search width the calibration chose.
+    pub ann_expansion_search: usize,
+    /// Recall@10 against the exact scan, on queries the calibration did not see.
+    pub recall_at_10: f64,
+    /// Top-10 search in the index, one thread: median and 99th percentile, milliseconds.
+    pub ann_p50_ms: f64,
+    /// See `ann_p50_ms`.
+    pub ann_p99_ms: f64,
+    /// The exact top-10 scan, one thread, the same queries: median, milliseconds.
+    pub exact_p50_ms: f64,
+    /// See `exact_p50_ms`.
+    pub exact_p99_ms: f64,
+    /// Bytes the index holds, MiB.
+    pub ann_mib: f64,
+    /// This process's resident memory after the row, MiB.
+    pub rss_mib: f64,
+}
+
+/// Item embeddings standing in for a trained g: category centres `N(0, 1)`, items around
+/// them with noise `N(0, 0.35^2)` per component.
+pub fn stand_in_embeddings(catalogue: &LargeCatalogue, d: usize, seed: u64) -> Vec<f32> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let unit = Normal::new(0.0f32, 1.0).expect("a valid normal");
+    let centres: Vec<f32> = (0..catalogue.categories() * d)
+        .map(|_| unit.sample(&mut rng))
+        .collect();
+    let mut table = Vec::with_capacity(catalogue.items() * d);
+    for item in 0..catalogue.items() as u32 {
+        let c = catalogue.category(item) as usize;
+        for j in 0..d {
+            table.push(centres[c * d + j] + 0.35 * unit.sample(&mut rng));
+        }
+    }
+    table
+}
+
+/// Median and 99th percentile of `f` over `queries`, milliseconds.
+fn time_each(queries: &[f32], d: usize, mut f: impl FnMut(&[f32])) -> (f64, f64) {
+    let mut ms: Vec<f64> = queries
+        .chunks_exact(d)
+        .map(|q| {
+            let t = Instant::now();
+            f(q);
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    ms.sort_by(f64::total_cmp);
+    (percentile(&ms, 0.5), percentile(&ms, 0.99))
+}
+
+/// Measures one catalogue size.
+pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
+    let config = LargeCatalogueConfig {
+        items,
+        ..LargeCatalogueConfig::default()
+    };
+    let t = Instant::now();
+    let catalogue = LargeCatalogue::new(&config).map_err(anyhow::Error::msg)?;
+    let stats = catalogue.stats();
+    let generate_s = t.elapsed().as_secs_f64();
+    let table = stand_in_embeddings(&catalogue, EMBEDDING_DIM, config.seed);
+    let settings = ApproxSettings::default();
+    let t = Instant::now();
+    let approx = ApproxNearest::build(&table, EMBEDDING_DIM, &settings)?;
+    let ann_build_s = t.elapsed().as_secs_f64();
+    let exact = NearestAction::new(&table, EMBEDDING_DIM);
+    let queries = calibration_queries(
+        &table,
+        EMBEDDING_DIM,
+        &ApproxSettings {
+            seed: 2,
+            calibration_queries: if quick { 100 } else { 1_000 },
+            ..settings
+        },
+    );
+    let n = catalogue.items();
+    let (mut wanted, mut got) = (Vec::new(), Vec::new());
+    let (exact_p50_ms, exact_p99_ms) = time_each(&queries, EMBEDDING_DIM, |q| {
+        wanted.push(exact.k_nearest(q, K, n));
+    });
+    let (ann_p50_ms, ann_p99_ms) = time_each(&queries, EMBEDDING_DIM, |q| {
+        got.push(approx.k_nearest(q, K, n));
+    });
+    let recall_at_10 = got
+        .iter()
+        .zip(&wanted)
+        .map(|(g, w)| recall(g, w))
+        .sum::<f64>()
+        / wanted.len() as f64;
+    Ok(CatalogueRow {
+        items: stats.items,
+        sessions: stats.sessions,
+        events: stats.events,
+        events_per_session: stats.events_per_session,
+        same_category_share: stats.same_category_share,
+        top_1pct_share: stats.top_1pct_share,
+        generate_s,
+        embeddings: "category stand-in",
+        ann_build_s,
+        ann_expansion_search: approx.expansion_search(),
+        recall_at_10,
+        ann_p50_ms,
+        ann_p99_ms,
+        exact_p50_ms,
+        exact_p99_ms,
+        ann_mib: approx.memory_bytes() as f64 / 1_048_576.0,
+        rss_mib: crate::recommender::rss_mib(),
+    })
+}
+
+/// The default sizes.
+pub const DEFAULT_ITEMS: [u32; 3] = [10_000, 100_000, 1_000_000];
+
+/// Runs the sizes, printing a row as each is measured: a table, or with `json` one object
+/// per line.
+pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
+    if !json {
+        println!(
+            "OTTO (train, as published): {OTTO_ITEMS} items, {OTTO_SESSIONS} sessions, {:.1} events a session, {:.2} sessions an item",
+            OTTO_EVENTS as f64 / OTTO_SESSIONS as f64,
+            OTTO_SESSIONS as f64 / OTTO_ITEMS as f64
+        );
+        println!(
+            "{:>9} {:>9} {:>10} {:>7} {:>6} {:>6} {:>7} {:>8} {:>5} {:>7} {:>8} {:>8} {:>8} {:>8} {:>7}",
+            "items",
+            "sessions",
+            "events",
+            "ev/ses",
+            "same",
+            "top1%",
+            "gen s",
+            "ann s",
+            "ef",
+            "recall",
+            "ann p50",
+            "ann p99",
+            "scan p50",
+            "scan p99",
+            "rss MiB"
+        );
+    }
+    for &n in items {
+        let row = measure(n, quick)?;
+        if json {
+            println!("{}", serde_json::to_string(&row)?);
+        } else {
+            println!(
+                "{:>9} {:>9} {:>10} {:>7.2} {:>6.3} {:>6.3} {:>7.1} {:>8.1} {:>5} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>7.0}",
+                row.items,
+                row.sessions,
+                row.events,
+                row.events_per_session,
+                row.same_category_share,
+                row.top_1pct_share,
+                row.generate_s,
+                row.ann_build_s,
+                row.ann_expansion_search,
+                row.recall_at_10,
+                row.ann_p50_ms,
+                row.ann_p99_ms,
+                row.exact_p50_ms,
+                row.exact_p99_ms,
+                row.rss_mib
+            );
+        }
+    }
+    Ok(())
+}
