@@ -59,10 +59,24 @@ fn a_row_is_its_own_nearest_and_distances_are_euclidean() {
         hits += usize::from(got[0].0 as usize == a && got[0].1 < 1e-3);
     }
     assert!(hits >= 50, "{hits} of 55 rows found themselves");
+    // far from every row: whatever it returns, the distance is that row's Euclidean one, and
+    // no shorter than the exact nearest's
     let e = vec![5.0; d];
-    let got = approx.k_nearest(&e, 3, n);
-    let want = NearestAction::new(&table, d).k_nearest(&e, 3, n);
-    assert!((got[0].1 - want[0].1).abs() < 1e-3 * want[0].1.max(1.0));
+    let want = NearestAction::new(&table, d).k_nearest(&e, 1, n)[0].1;
+    for (a, dist) in approx.k_nearest(&e, 3, n) {
+        let row = &table[a as usize * d..(a as usize + 1) * d];
+        let true_dist = row
+            .iter()
+            .zip(&e)
+            .map(|(r, x)| (r - x) * (r - x))
+            .sum::<f32>()
+            .sqrt();
+        assert!(
+            (dist - true_dist).abs() < 1e-3 * true_dist.max(1.0),
+            "{dist} {true_dist}"
+        );
+        assert!(dist >= want - 1e-4, "{dist} < the exact {want}");
+    }
 }
 
 #[test]
@@ -93,8 +107,8 @@ fn the_index_is_exact_below_its_threshold_and_approximate_from_it() {
 #[test]
 fn a_table_that_is_not_rows_is_refused() {
     for (values, d) in [(10, 3), (0, 4), (8, 0)] {
-        let err =
-            ApproxNearest::build(&vec![0.0; values], d, &ApproxSettings::default()).expect_err("refused");
+        let err = ApproxNearest::build(&vec![0.0; values], d, &ApproxSettings::default())
+            .expect_err("refused");
         assert!(err.to_string().contains("not rows of width"), "{err}");
     }
 }

@@ -128,10 +128,17 @@ pub fn follow(
         let security = security.clone();
         tasks.spawn(async move {
             let followed = client::watch_embedding(&security, &url, |s| {
-                if let Err(e) = rec.set_embedding(&s) {
-                    tracing::warn!("recommender: {e}");
+                // decoding a snapshot builds f's index (minutes at a million items): on a
+                // blocking thread, so the runtime's workers go on answering meanwhile
+                let rec = rec.clone();
+                async move {
+                    match tokio::task::spawn_blocking(move || rec.set_embedding(&s)).await {
+                        Ok(Ok(())) => {}
+                        Ok(Err(e)) => tracing::warn!("recommender: {e}"),
+                        Err(e) => tracing::error!("recommender: decoding an embedding: {e}"),
+                    }
+                    true
                 }
-                async { true }
             })
             .await;
             if let Err(e) = followed {

@@ -61,6 +61,9 @@ impl Continuations {
 pub struct NgramModel {
     catalogue: Catalogue,
     popularity: Continuations,
+    /// `[capacity]`: each slot's share of all purchases (`popularity` read densely: the
+    /// greedy rule asks it of every item at every step).
+    popularity_share: Vec<f64>,
     start: Continuations,
     after_one: Vec<Continuations>,
     after_two: HashMap<u64, Continuations>,
@@ -114,6 +117,13 @@ impl NgramModel {
         if sum.popularity.is_empty() {
             return None;
         }
+        let total: u64 = sum.popularity.values().map(|&c| u64::from(c)).sum();
+        let mut popularity_share = vec![0.0; catalogue.capacity()];
+        for (&item, &c) in &sum.popularity {
+            if let Some(x) = popularity_share.get_mut(item as usize) {
+                *x = f64::from(c) / total as f64;
+            }
+        }
         let value = sum
             .price_sum
             .iter()
@@ -128,6 +138,7 @@ impl NgramModel {
         Some(Self {
             catalogue,
             popularity: Continuations::from_map(&sum.popularity),
+            popularity_share,
             start: Continuations::from_map(&sum.start),
             after_one: sum.after_one.iter().map(Continuations::from_map).collect(),
             after_two: sum
@@ -172,7 +183,10 @@ impl NgramModel {
 
     /// The item's share of all purchases (P(item) with no context).
     pub fn popularity(&self, item: u32) -> f64 {
-        self.popularity.count_of(item) as f64 / self.popularity.total() as f64
+        self.popularity_share
+            .get(item as usize)
+            .copied()
+            .unwrap_or(0.0)
     }
 
     fn after_one(&self, last: u32) -> Option<&Continuations> {
