@@ -76,6 +76,9 @@ pub fn recall(got: &[(u32, f32)], want: &[(u32, f32)]) -> f64 {
     hits as f64 / want.len() as f64
 }
 
+/// Thread slots reserved for searches.
+const SEARCH_THREADS: usize = 256;
+
 /// Actions' embeddings in an HNSW graph, searched approximately.
 pub struct ApproxNearest {
     index: Index,
@@ -146,6 +149,12 @@ impl ApproxNearest {
         if let Some(e) = failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
             return Err(e);
         }
+        // a search takes one of the reserved thread slots and fails when none is free (it does
+        // not wait): room for every thread that may search at once (a service's workers, an
+        // actor's, the blocking pool's)
+        index
+            .reserve_capacity_and_threads(n, SEARCH_THREADS.max(threads))
+            .map_err(native)?;
         let mut approx = Self {
             index,
             len: n,
@@ -220,26 +229,44 @@ impl ApproxNearest {
     }
 
     /// The `k` actions among the first `rows` nearest to `e` (`[d]`), as `(action,
-    /// distance)`, nearest first, approximately.
+    /// distance)`, nearest first, approximately. Empty for a query of another width.
     pub fn k_nearest(&self, e: &[f32], k: usize, rows: usize) -> Vec<(u32, f32)> {
-        assert_eq!(e.len(), self.dim, "a query of the index's width");
         let k = k.min(rows.min(self.len));
-        if k == 0 {
+        if k == 0 || e.len() != self.dim {
             return Vec::new();
         }
-        let found = if rows >= self.len {
-            self.index.search(e, k)
-        } else {
-            self.index
-                .filtered_search(e, k, |key| (key as usize) < rows)
+        let found = self.search(e, k, None);
+        if rows >= self.len {
+            return found;
+        }
+        // within the first rows: the plain search's answers where enough of them are there
+        // (the common case: most rows are held), else a search that skips the others
+        let within: Vec<(u32, f32)> = found
+            .iter()
+            .copied()
+            .filter(|&(a, _)| (a as usize) < rows)
+            .collect();
+        if within.len() == k {
+            return within;
+        }
+        self.search(e, k, Some(rows))
+    }
+
+    fn search(&self, e: &[f32], k: usize, rows: Option<usize>) -> Vec<(u32, f32)> {
+        let found = match rows {
+            None => self.index.search(e, k),
+            Some(rows) => self
+                .index
+                .filtered_search(e, k, |key| (key as usize) < rows),
         };
-        // a search of a built index with a query of its width fails only when memory does
+        // the searches' thread slots are reserved and the query has the index's width: a
+        // failure is memory running out
         let found = found.expect("a search of a built index");
         found
             .keys
             .iter()
             .zip(&found.distances)
-            .map(|(&a, &d2)| (a as u32, d2.max(0.0).sqrt()))
+            .map(|(&a, &d2)| (a as u32, if d2.is_nan() { d2 } else { d2.max(0.0).sqrt() }))
             .collect()
     }
 

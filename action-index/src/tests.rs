@@ -87,9 +87,17 @@ fn a_search_within_the_first_rows_returns_only_them() {
     let got = approx.k_nearest(&table[2_500 * d..2_501 * d], 10, 1_000);
     assert_eq!(got.len(), 10);
     assert!(got.iter().all(|(a, _)| *a < 1_000), "{got:?}");
+    // most rows within: the plain search's answers
+    let got = approx.k_nearest(&table[10 * d..11 * d], 5, 2_900);
+    assert_eq!(got.len(), 5);
+    assert!(got.iter().all(|(a, _)| *a < 2_900), "{got:?}");
     let mut batch = Vec::new();
     approx.nearest_batch(&table[..4 * d], &mut batch);
     assert_eq!(batch.len(), 4);
+    assert!(
+        approx.k_nearest(&[0.0; 3], 5, n).is_empty(),
+        "a query of another width"
+    );
 }
 
 #[test]

@@ -145,7 +145,24 @@ impl Weights {
     /// Installs `snapshot` whatever its version, an older one too (the end-of-run evaluation
     /// goes back to the embedding the final policy was trained on).
     pub fn load_embedding(&mut self, snapshot: &EmbeddingSnapshot) -> Result<(), SwapError> {
-        let embedding = Embedding::from_snapshot(
+        self.embedding = Some(self.decode_embedding(snapshot)?);
+        Ok(())
+    }
+
+    /// Installs an embedding decoded by [`Self::decode_embedding`] if it is newer than the
+    /// one in use; returns whether it did.
+    pub fn install_embedding(&mut self, embedding: Embedding) -> bool {
+        if embedding.version() <= self.embedding_version() {
+            return false;
+        }
+        self.embedding = Some(embedding);
+        true
+    }
+
+    /// Decodes `snapshot` for these weights' settings and spaces without installing it (f's
+    /// index is built here: minutes at a million actions).
+    pub fn decode_embedding(&self, snapshot: &EmbeddingSnapshot) -> Result<Embedding, SwapError> {
+        Embedding::from_snapshot(
             &self.config.embedding,
             self.config.algo.representation(),
             &self.states,
@@ -157,8 +174,6 @@ impl Weights {
             kind: "embedding",
             version: snapshot.version,
             source,
-        })?;
-        self.embedding = Some(embedding);
-        Ok(())
+        })
     }
 }

@@ -63,8 +63,39 @@ pub struct CatalogueRow {
     pub exact_p99_ms: f64,
     /// Bytes the index holds, MiB.
     pub ann_mib: f64,
-    /// This process's resident memory after the row, MiB.
+    /// This process's resident memory with the index, the exact scan's table and the
+    /// embeddings held, MiB.
     pub rss_mib: f64,
+    /// PPO with a categorical head over every item (64-wide input, the default hidden
+    /// layers, fused update): milliseconds per update of 2,048 samples.
+    pub ppo_categorical_update_ms: f64,
+    /// Resident memory that PPO learner added, MiB.
+    pub ppo_categorical_mib: f64,
+}
+
+/// Samples per PPO update measured (one actor's rollout).
+const PPO_BATCH: usize = 2_048;
+
+/// Times one PPO update (after an untimed one, except from a million items, where one
+/// takes minutes) of a categorical head over `items` actions on a 64-wide input: the
+/// head alone (plain PPO on the recommender reads a one-hot input of `2 (items + 1)` more).
+/// Returns milliseconds per update and the resident memory added, MiB.
+pub fn ppo_categorical(items: usize) -> (f64, f64) {
+    let ppo = jsae_settings::PpoConfig {
+        batch_steps: PPO_BATCH,
+        ..jsae_settings::PpoConfig::default()
+    };
+    let before = crate::recommender::rss_mib();
+    let (s, _) = crate::learner::time_updates(
+        &ppo,
+        EMBEDDING_DIM,
+        jsae_agent::PolicyHead::Categorical { n: items },
+        None,
+        PPO_BATCH,
+        1,
+        items < 1_000_000,
+    );
+    (s * 1e3, crate::recommender::rss_mib() - before)
 }
 
 /// Item embeddings standing in for a trained g: category centres `N(0, 1)`, items around
@@ -132,6 +163,13 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
     let (ann_p50_ms, ann_p99_ms) = time_each(&queries, EMBEDDING_DIM, |q| {
         got.push(approx.k_nearest(q, K, n));
     });
+    let (ann_expansion_search, ann_mib, rss_mib) = (
+        approx.expansion_search(),
+        approx.memory_bytes() as f64 / 1_048_576.0,
+        crate::recommender::rss_mib(),
+    );
+    drop((approx, exact, table));
+    let (ppo_categorical_update_ms, ppo_categorical_mib) = ppo_categorical(n);
     let recall_at_10 = got
         .iter()
         .zip(&wanted)
@@ -148,14 +186,16 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
         generate_s,
         embeddings: "category stand-in",
         ann_build_s,
-        ann_expansion_search: approx.expansion_search(),
+        ann_expansion_search,
         recall_at_10,
         ann_p50_ms,
         ann_p99_ms,
         exact_p50_ms,
         exact_p99_ms,
-        ann_mib: approx.memory_bytes() as f64 / 1_048_576.0,
-        rss_mib: crate::recommender::rss_mib(),
+        ann_mib,
+        rss_mib,
+        ppo_categorical_update_ms,
+        ppo_categorical_mib,
     })
 }
 
@@ -172,7 +212,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             OTTO_SESSIONS as f64 / OTTO_ITEMS as f64
         );
         println!(
-            "{:>9} {:>9} {:>10} {:>7} {:>6} {:>6} {:>7} {:>8} {:>5} {:>7} {:>8} {:>8} {:>8} {:>8} {:>7}",
+            "{:>9} {:>9} {:>10} {:>7} {:>6} {:>6} {:>7} {:>8} {:>5} {:>7} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>7}",
             "items",
             "sessions",
             "events",
@@ -187,7 +227,9 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             "ann p99",
             "scan p50",
             "scan p99",
-            "rss MiB"
+            "rss MiB",
+            "ppo ms",
+            "ppo MiB"
         );
     }
     for &n in items {
@@ -196,7 +238,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string(&row)?);
         } else {
             println!(
-                "{:>9} {:>9} {:>10} {:>7.2} {:>6.3} {:>6.3} {:>7.1} {:>8.1} {:>5} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>7.0}",
+                "{:>9} {:>9} {:>10} {:>7.2} {:>6.3} {:>6.3} {:>7.1} {:>8.1} {:>5} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>7.0} {:>9.0} {:>7.0}",
                 row.items,
                 row.sessions,
                 row.events,
@@ -211,7 +253,9 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
                 row.ann_p99_ms,
                 row.exact_p50_ms,
                 row.exact_p99_ms,
-                row.rss_mib
+                row.rss_mib,
+                row.ppo_categorical_update_ms,
+                row.ppo_categorical_mib
             );
         }
     }

@@ -102,7 +102,6 @@ pub fn bench_batch(
     ppo.batch_steps = batch;
     ppo.update = path;
     ppo.minibatches = minibatches.or(ppo.minibatches);
-    let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
     // plain PPO on categorical states reads them one-hot, as the actors encode them
     let one_hot = match &states {
         StateSpace::Categorical { sizes }
@@ -113,11 +112,50 @@ pub fn bench_batch(
         }
         _ => None,
     };
+    let (elapsed, epochs) =
+        time_updates(&ppo, input, head, one_hot.as_deref(), batch, updates, true);
+    let n = updates.max(1);
+    let (outputs, head_name) = head_outputs(head);
+    // the products done: a one-hot input row multiplies one weight row per factor
+    let read = one_hot.as_ref().map_or(input, Vec::len);
+    let weights = mlp_weights(read, &ppo.hidden, outputs) + mlp_weights(read, &ppo.hidden, 1);
+    let flops = 6.0 * weights as f64 * batch as f64 * epochs as f64;
+    LearnerBench {
+        case: format!("{}/{}", env.as_str(), algo.as_str()),
+        input,
+        head: head_name,
+        minibatch: ppo.minibatch_len(batch),
+        epochs: epochs / n,
+        batch,
+        update_ms: elapsed * 1e3 / n as f64,
+        gflops: flops / elapsed / 1e9,
+    }
+}
+
+/// Seconds spent in `updates` PPO updates of `batch` synthetic samples (whole fragments) of
+/// a fresh learner with these settings and shape, and the epochs they ran; with `warm_up`,
+/// after one untimed update (buffers, the allocator's pages and the optimiser's state are
+/// set up there, and every later update reuses them). `one_hot`: the factor sizes of a
+/// one-hot input.
+pub fn time_updates(
+    ppo: &jsae_settings::PpoConfig,
+    input: usize,
+    head: PolicyHead,
+    one_hot: Option<&[usize]>,
+    batch: usize,
+    updates: usize,
+    warm_up: bool,
+) -> (f64, usize) {
+    let mut learner = Learner::new(ppo.clone(), input, head, 1 << 40, 1, DeviceKind::Flex);
     let mut rng = ChaCha8Rng::seed_from_u64(3);
     let (mut elapsed, mut epochs) = (0.0, 0);
     // one update first, untimed: buffers, the allocator's pages and the optimiser's state
     // are set up there, and every later update reuses them
-    for timed in std::iter::once(false).chain(std::iter::repeat_n(true, updates.max(1))) {
+    let first = (!warm_up).then_some(true);
+    for timed in std::iter::once(first.unwrap_or(false)).chain(std::iter::repeat_n(
+        true,
+        updates.max(1) - usize::from(!warm_up),
+    )) {
         let fragments: Vec<RolloutFragment> = (0..batch / FRAGMENT)
             .map(|_| {
                 let mut f = jsae_learner::synthetic::fragment(
@@ -127,7 +165,7 @@ pub fn bench_batch(
                     FRAGMENT,
                     &mut rng,
                 );
-                if let Some(sizes) = &one_hot {
+                if let Some(sizes) = one_hot {
                     one_hot_rows(&mut f.x, sizes, &mut rng);
                     one_hot_rows(&mut f.truncated_next_x, sizes, &mut rng);
                     one_hot_rows(&mut f.last_next_x, sizes, &mut rng);
@@ -147,22 +185,7 @@ pub fn bench_batch(
             elapsed += t.elapsed().as_secs_f64();
         }
     }
-    let n = updates.max(1);
-    let (outputs, head_name) = head_outputs(head);
-    // the products done: a one-hot input row multiplies one weight row per factor
-    let read = one_hot.as_ref().map_or(input, Vec::len);
-    let weights = mlp_weights(read, &ppo.hidden, outputs) + mlp_weights(read, &ppo.hidden, 1);
-    let flops = 6.0 * weights as f64 * batch as f64 * epochs as f64;
-    LearnerBench {
-        case: format!("{}/{}", env.as_str(), algo.as_str()),
-        input,
-        head: head_name,
-        minibatch: ppo.minibatch_len(batch),
-        epochs: epochs / n,
-        batch,
-        update_ms: elapsed * 1e3 / n as f64,
-        gflops: flops / elapsed / 1e9,
-    }
+    (elapsed, epochs)
 }
 
 /// A single-thread GEMM kernel the bench can time.

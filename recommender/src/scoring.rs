@@ -167,7 +167,16 @@ impl Recommender {
 
     /// Swaps in a newer embedding snapshot.
     pub fn set_embedding(&self, snapshot: &EmbeddingSnapshot) -> Result<(), String> {
-        self.swap(|w| w.set_embedding(snapshot))
+        let current = self.weights();
+        if snapshot.version <= current.embedding_version() {
+            return Ok(());
+        }
+        // decoded once, outside the swap's retries: f's index is built here (minutes at a
+        // million items), and a policy swapped in meanwhile must not start it again
+        let decoded = current
+            .decode_embedding(snapshot)
+            .map_err(|e| e.to_string())?;
+        self.swap(|w| Ok(w.install_embedding(decoded.clone())))
     }
 
     /// The `k` best items after `history` (item ids, oldest first).
