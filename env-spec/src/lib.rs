@@ -283,9 +283,16 @@ impl LargeCatalogueConfig {
                 self.sessions_per_item
             ));
         }
-        if !(self.mean_len >= 1.0 && self.mean_len <= 1e3) {
+        if self.sessions() == 0 {
             return Err(format!(
-                "mean_len must be in [1, 1000], not {}",
+                "sessions_per_item = {} gives no session over {} items",
+                self.sessions_per_item, self.items
+            ));
+        }
+        // sessions are cut at 500 purchases: a mean near that would not be the mean asked for
+        if !(self.mean_len >= 1.0 && self.mean_len <= 100.0) {
+            return Err(format!(
+                "mean_len must be in [1, 100], not {}",
                 self.mean_len
             ));
         }

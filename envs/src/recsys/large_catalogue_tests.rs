@@ -94,6 +94,21 @@ fn bad_settings_are_refused_with_the_reason() {
             },
             "sessions_per_item",
         ),
+        (
+            LargeCatalogueConfig {
+                items: 2,
+                sessions_per_item: 0.1,
+                ..small()
+            },
+            "gives no session",
+        ),
+        (
+            LargeCatalogueConfig {
+                mean_len: 400.0,
+                ..small()
+            },
+            "mean_len",
+        ),
     ] {
         let err = LargeCatalogue::new(&config).expect_err("refused");
         assert!(err.contains(reason), "{err}");
