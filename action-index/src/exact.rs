@@ -2,7 +2,8 @@
 //!
 //! The table is stored column by column so the distance to every action is one pass of
 //! contiguous, auto-vectorised arithmetic per embedding dimension, into a scratch buffer
-//! allocated once: a lookup allocates nothing.
+//! allocated once: a nearest-action lookup allocates nothing (a top-k allocates its
+//! distances and the k it returns).
 
 /// Exact nearest-neighbour search over a fixed `[n, d]` table of action embeddings.
 #[derive(Debug, Clone)]

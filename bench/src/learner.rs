@@ -151,11 +151,8 @@ pub fn time_updates(
     let (mut elapsed, mut epochs) = (0.0, 0);
     // one update first, untimed: buffers, the allocator's pages and the optimiser's state
     // are set up there, and every later update reuses them
-    let first = (!warm_up).then_some(true);
-    for timed in std::iter::once(first.unwrap_or(false)).chain(std::iter::repeat_n(
-        true,
-        updates.max(1) - usize::from(!warm_up),
-    )) {
+    for round in 0..updates.max(1) + usize::from(warm_up) {
+        let timed = !(warm_up && round == 0);
         let fragments: Vec<RolloutFragment> = (0..batch / FRAGMENT)
             .map(|_| {
                 let mut f = jsae_learner::synthetic::fragment(
