@@ -71,6 +71,17 @@ pub struct CatalogueRow {
     pub ppo_categorical_update_ms: f64,
     /// Resident memory that PPO learner added, MiB.
     pub ppo_categorical_mib: f64,
+    /// The recommender JSAE embedder's minibatch step (4,096 transitions from the
+    /// sessions), milliseconds.
+    pub embedder_step_ms: f64,
+    /// Which step: `sampled` (catalogue scale, `embedding.sampled_softmax_from`) or `dense`.
+    pub embedder_step: &'static str,
+    /// Resident memory the embedder's trainer added, MiB.
+    pub embedder_mib: f64,
+    /// Its model loss at the first step and the last timed one (nats).
+    pub embedder_loss_first: f32,
+    /// See `embedder_loss_first`.
+    pub embedder_loss_last: f32,
 }
 
 /// Samples per PPO update measured (one actor's rollout).
@@ -170,6 +181,7 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
     );
     drop((approx, exact, table));
     let (ppo_categorical_update_ms, ppo_categorical_mib) = ppo_categorical(n);
+    let embedder = crate::catalogue_embedder::embedder_steps(&catalogue);
     let recall_at_10 = got
         .iter()
         .zip(&wanted)
@@ -196,6 +208,11 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
         rss_mib,
         ppo_categorical_update_ms,
         ppo_categorical_mib,
+        embedder_step_ms: embedder.step_ms,
+        embedder_step: if embedder.sampled { "sampled" } else { "dense" },
+        embedder_mib: embedder.mib,
+        embedder_loss_first: embedder.loss.0,
+        embedder_loss_last: embedder.loss.1,
     })
 }
 
@@ -212,7 +229,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             OTTO_SESSIONS as f64 / OTTO_ITEMS as f64
         );
         println!(
-            "{:>9} {:>9} {:>10} {:>7} {:>6} {:>6} {:>7} {:>8} {:>5} {:>7} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>7}",
+            "{:>9} {:>9} {:>10} {:>7} {:>6} {:>6} {:>7} {:>8} {:>5} {:>7} {:>8} {:>8} {:>8} {:>8} {:>7} {:>9} {:>7} {:>8} {:>8}",
             "items",
             "sessions",
             "events",
@@ -229,7 +246,9 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             "scan p99",
             "rss MiB",
             "ppo ms",
-            "ppo MiB"
+            "ppo MiB",
+            "emb ms",
+            "emb MiB"
         );
     }
     for &n in items {
@@ -238,7 +257,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string(&row)?);
         } else {
             println!(
-                "{:>9} {:>9} {:>10} {:>7.2} {:>6.3} {:>6.3} {:>7.1} {:>8.1} {:>5} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>7.0} {:>9.0} {:>7.0}",
+                "{:>9} {:>9} {:>10} {:>7.2} {:>6.3} {:>6.3} {:>7.1} {:>8.1} {:>5} {:>7.3} {:>8.3} {:>8.3} {:>8.3} {:>8.3} {:>7.0} {:>9.0} {:>7.0} {:>8.0} {:>8.0}",
                 row.items,
                 row.sessions,
                 row.events,
@@ -255,7 +274,9 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
                 row.exact_p99_ms,
                 row.rss_mib,
                 row.ppo_categorical_update_ms,
-                row.ppo_categorical_mib
+                row.ppo_categorical_mib,
+                row.embedder_step_ms,
+                row.embedder_mib
             );
         }
     }

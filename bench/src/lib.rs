@@ -5,6 +5,7 @@
 //! end-to-end actor scaling (`scaling`) benchmarks are the submodules.
 
 pub mod catalogue;
+pub mod catalogue_embedder;
 pub mod learner;
 pub mod mujoco;
 pub mod recommender;

@@ -18,6 +18,7 @@
 
 #![forbid(unsafe_code)]
 
+mod catalogue;
 pub mod lifecycle;
 mod model;
 mod pretrain_progress;
@@ -32,6 +33,6 @@ pub use jsae_settings::EmbeddingConfig;
 pub use model::{EmbeddingTraining, cross_entropy};
 pub use pretrain_progress::{PRETRAIN_PHASE, PretrainProgress};
 pub use recorded::{RecordedPretraining, pretrain_from_recording};
-pub use representation::RepresentationModel;
+pub use representation::{RepresentationModel, TrainingModel};
 pub use structure::ActionStructure;
 pub use trainer::{EmbedderStats, EmbedderTrainer, LoggedItems, LoggedReport};

@@ -12,7 +12,7 @@ use jsae_wire::{ActionBatch, StateBatch, StateSpace};
 
 mod baselines;
 mod transfer;
-mod wide_softmax;
+pub(crate) mod wide_softmax;
 
 /// What training needs of the embedding model beyond acting.
 pub trait EmbeddingTraining {
@@ -168,7 +168,7 @@ fn state_loss(model: &EmbeddingModel, out: Tensor<2>, target: &StateBatch) -> Te
 
 /// The last factor of every categorical state (the recommender's item bought last; None for
 /// real states).
-fn last_factor(states: &StateBatch) -> Option<Vec<u32>> {
+pub(crate) fn last_factor(states: &StateBatch) -> Option<Vec<u32>> {
     match states {
         StateBatch::Categorical { factors, data } if *factors > 0 => Some(
             data.iter()

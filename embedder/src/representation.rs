@@ -8,11 +8,13 @@
 
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use jsae_nn::RecordError;
+use jsae_settings::Representation;
 use jsae_wire::{ActionSpace, StateBatch, StateSpace};
 
 use jsae_agent::EmbeddingModel;
 
 use crate::EmbeddingTraining;
+use crate::catalogue::CatalogueTables;
 use crate::replay::Minibatch;
 
 /// A model the embedder trains from transitions and publishes as snapshots.
@@ -108,5 +110,142 @@ impl RepresentationModel for EmbeddingModel {
     fn action_embeddings(&self) -> Option<(Vec<f32>, usize)> {
         let table = self.action_table()?;
         Some((jsae_nn::to_vec(table), self.config().action_dim))
+    }
+}
+
+/// The embedding model as the embedder trains it: the model, and at catalogue scale
+/// (`embedding.sampled_softmax_from`) its item-sized tables on the host, which its steps,
+/// evaluations and snapshots go through ([`CatalogueTables`]). It reads as the model.
+#[derive(Debug)]
+pub struct TrainingModel {
+    model: EmbeddingModel,
+    catalogue: Option<Box<CatalogueTables>>,
+}
+
+impl TrainingModel {
+    /// `model` for training; at catalogue scale its tables copied to the host (T's output
+    /// rows drawn from `seed`).
+    pub fn new(model: EmbeddingModel, seed: u64) -> Self {
+        // the model was built for it: JSAE's, categorical states, no T of its own
+        let jsae = matches!(
+            model.representation(),
+            Representation::Jsae | Representation::Raw
+        );
+        let catalogue = (jsae
+            && model.net().transition.is_none()
+            && model.config().samples_items(model.action_space()))
+        .then(|| CatalogueTables::new(&model, seed).ok())
+        .flatten()
+        .map(Box::new);
+        Self { model, catalogue }
+    }
+
+    /// Whether it trains at catalogue scale.
+    pub fn at_catalogue_scale(&self) -> bool {
+        self.catalogue.is_some()
+    }
+
+    /// Takes the host tables from the model again (after its weights changed in place: a
+    /// warm start).
+    pub fn tables_from_model(&mut self) {
+        if let Some(c) = &mut self.catalogue {
+            c.read_from(&self.model);
+        }
+    }
+
+    /// The model as a snapshot carries it (phi's and g's tables from the host).
+    fn current(&self) -> std::borrow::Cow<'_, EmbeddingModel> {
+        match &self.catalogue {
+            Some(c) => std::borrow::Cow::Owned(c.write_into(&self.model)),
+            None => std::borrow::Cow::Borrowed(&self.model),
+        }
+    }
+}
+
+impl std::ops::Deref for TrainingModel {
+    type Target = EmbeddingModel;
+
+    fn deref(&self) -> &EmbeddingModel {
+        &self.model
+    }
+}
+
+impl std::ops::DerefMut for TrainingModel {
+    fn deref_mut(&mut self) -> &mut EmbeddingModel {
+        &mut self.model
+    }
+}
+
+impl RepresentationModel for TrainingModel {
+    fn state_space(&self) -> &StateSpace {
+        self.model.state_space()
+    }
+
+    fn action_space(&self) -> &ActionSpace {
+        self.model.action_space()
+    }
+
+    fn observe_states(&mut self, states: &StateBatch) {
+        self.model.observe_states(states);
+    }
+
+    fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32) {
+        match &mut self.catalogue {
+            Some(c) => {
+                let loss = c.train_step(
+                    &mut self.model,
+                    optim,
+                    &mb.states,
+                    &mb.actions,
+                    &mb.next_states,
+                    lr,
+                );
+                (loss, 0.0)
+            }
+            None => self.model.train_step(optim, mb, lr),
+        }
+    }
+
+    fn train_next_item_step(
+        &mut self,
+        optim: &mut ModuleOptimizer,
+        states: &StateBatch,
+        items: &[u32],
+        lr: f64,
+    ) -> Option<f32> {
+        match &mut self.catalogue {
+            Some(c) => {
+                self.model.net().next_item.as_ref()?;
+                Some(c.next_item_step(&mut self.model, optim, states, items, lr))
+            }
+            None => self.model.train_next_item_step(optim, states, items, lr),
+        }
+    }
+
+    fn evaluate(&self, mb: &Minibatch) -> (f32, f32) {
+        match &self.catalogue {
+            Some(c) => (
+                c.evaluate(&self.model, &mb.states, &mb.actions, &mb.next_states),
+                0.0,
+            ),
+            None => self.model.evaluate(mb),
+        }
+    }
+
+    fn snapshot_bytes(&self) -> Result<Vec<u8>, RecordError> {
+        self.current().snapshot_bytes()
+    }
+
+    fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), RecordError> {
+        RepresentationModel::load_bytes(&mut self.model, bytes)?;
+        self.tables_from_model();
+        Ok(())
+    }
+
+    fn action_embeddings(&self) -> Option<(Vec<f32>, usize)> {
+        match &self.catalogue {
+            Some(c) => Some(c.action_embeddings()),
+            None => self.model.action_embeddings(),
+        }
     }
 }

@@ -18,7 +18,7 @@ pub use logged::{LoggedItems, LoggedReport};
 
 use crate::pretrain_progress::{PretrainObserver, PretrainProgress};
 use crate::replay::Replay;
-use crate::representation::RepresentationModel;
+use crate::representation::{RepresentationModel, TrainingModel};
 use crate::structure::ActionStructure;
 use crate::{EmbeddingConfig, EmbeddingTraining};
 use jsae_agent::EmbeddingModel;
@@ -46,7 +46,7 @@ pub struct EmbedderStats {
 
 /// Owns the representation model (JSAE's by default), its optimiser and the replay buffer.
 #[derive(Debug)]
-pub struct EmbedderTrainer<M: RepresentationModel = EmbeddingModel> {
+pub struct EmbedderTrainer<M: RepresentationModel = TrainingModel> {
     config: EmbeddingConfig,
     model: M,
     optim: OptimDebug,
@@ -104,7 +104,7 @@ impl EmbedderTrainer {
             &mut rng,
             &device.train_device(),
         );
-        Self::with_model(config, model, rng)
+        Self::with_model(config, TrainingModel::new(model, seed), rng)
     }
 
     /// Warm-starts the model from another run's newest embedding (`--init-from`): every part
@@ -127,7 +127,9 @@ impl EmbedderTrainer {
         );
         from.load_bytes(bytes)
             .map_err(|e| format!("{}: {e}", source.dir.display()))?;
-        Ok(self.model.warm_start_from(&from))
+        let copied = self.model.warm_start_from(&from);
+        self.model.tables_from_model();
+        Ok(copied)
     }
 }
 

@@ -6,6 +6,9 @@ use jsae_spaces::ActionSpace;
 
 use super::embedding_recommender::RecommenderEmbeddingConfig;
 
+/// Most negatives a sampled-softmax minibatch draws (`embedding.negatives`).
+pub const MAX_NEGATIVES: usize = 1 << 16;
+
 /// Embedding model and trainer settings (paper section 4.3 and appendix; public reference
 /// code for the rest). The defaults are the gridworld's.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -35,6 +38,8 @@ pub struct EmbeddingConfig {
     /// ([`EmbeddingConfig::pretrain_budget`]), so it grows with the action space (0: exactly
     /// `pretrain_transitions`). At 4,096 gridworld actions 20,000 transitions (5 per action)
     /// left JSAE at success 0 on 3 of 3 seeds; 25 per action solves it (docs/src/experiments/large-action-spaces.md).
+    /// Not at catalogue scale (`sampled_softmax_from`), where the budget is
+    /// `pretrain_transitions`.
     pub pretrain_per_action: usize,
     /// Passes over the pre-training transitions.
     pub pretrain_epochs: usize,
@@ -50,6 +55,16 @@ pub struct EmbeddingConfig {
     /// The exact scan of 100,000 actions takes about 2 ms a lookup on one core, the index
     /// 0.09 ms (`jsae bench --catalogue`).
     pub approx_nearest_from: usize,
+    /// Discrete actions from which the model trains at catalogue scale (0: never): T predicts
+    /// the next state's last factor only (in the recommender the others are the state's own
+    /// items, shifted) and, like the next-item head, by a sampled softmax over the item bought
+    /// and `negatives` items drawn per minibatch, with the sampling-probability (logQ)
+    /// correction; phi's and g's tables and T's output rows live on the host and take lazy
+    /// Adam steps in the rows a minibatch touches. A dense softmax over 1M items at a
+    /// minibatch of 4,096 is 16 GB of logits. Snapshots carry no T (acting never reads it).
+    pub sampled_softmax_from: usize,
+    /// Items drawn per minibatch as the sampled softmax's negatives (shared by its rows).
+    pub negatives: usize,
     /// Transitions the replay buffer keeps (oldest dropped first).
     pub replay_capacity: usize,
     /// Continuous updates: new transitions between two updates (0 turns them off).
@@ -85,6 +100,8 @@ impl Default for EmbeddingConfig {
             transition_hidden: 0,
             decoder_hidden: 64,
             approx_nearest_from: 50_000,
+            sampled_softmax_from: 50_000,
+            negatives: 1024,
             replay_capacity: 200_000,
             update_every: 20_480,
             update_steps: 50,
@@ -100,10 +117,24 @@ impl EmbeddingConfig {
     /// Random transitions pre-training waits for with these actions: at least
     /// `pretrain_transitions`, and `pretrain_per_action` per discrete action.
     pub fn pretrain_budget(&self, actions: &ActionSpace) -> usize {
+        // at catalogue scale the items learn from what follows each purchase (the sampled
+        // next-item and T losses over every transition), not from each being tried: 25
+        // tries of each of a million items would be 25M random steps before any learning
+        if self.samples_items(actions) {
+            return self.pretrain_transitions;
+        }
         let per_action = actions
             .num_discrete()
             .map_or(0, |n| n.saturating_mul(self.pretrain_per_action));
         self.pretrain_transitions.max(per_action)
+    }
+
+    /// Whether a model of these actions trains at catalogue scale (`sampled_softmax_from`).
+    pub fn samples_items(&self, actions: &ActionSpace) -> bool {
+        match actions.num_discrete() {
+            Some(n) => self.sampled_softmax_from > 0 && n >= self.sampled_softmax_from,
+            None => false,
+        }
     }
 
     /// Width of the policy's input: `x = phi(s)`, followed by the next-item head's output
@@ -140,6 +171,12 @@ impl EmbeddingConfig {
             if v > MAX_WIDTH {
                 return Err(format!("embedding.{key} is {v}, at most {MAX_WIDTH}"));
             }
+        }
+        if !(1..=MAX_NEGATIVES).contains(&self.negatives) {
+            return Err(format!(
+                "embedding.negatives is {}, it must be in 1..={MAX_NEGATIVES}",
+                self.negatives
+            ));
         }
         let positive = |v: f64| v > 0.0 && v.is_finite();
         if !positive(self.lr) || !positive(self.update_lr) {

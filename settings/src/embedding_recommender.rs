@@ -34,6 +34,10 @@ pub struct RecommenderEmbeddingConfig {
     /// The logged pre-training's learning rate at its first pass, annealed linearly to 0 by
     /// its last (0: `embedding.lr`, constant).
     pub logged_pretrain_lr: f64,
+    /// The most minibatch steps the logged passes take (the last pass cut short): a
+    /// million items' logs are 20M purchases, 4,883 minibatches a pass. Instacart's 100
+    /// passes take 4,000.
+    pub logged_pretrain_max_steps: usize,
 }
 
 impl Default for RecommenderEmbeddingConfig {
@@ -43,6 +47,7 @@ impl Default for RecommenderEmbeddingConfig {
             pair_buckets: 0,
             logged_pretrain_epochs: 0,
             logged_pretrain_lr: 0.0,
+            logged_pretrain_max_steps: 5_000,
         }
     }
 }

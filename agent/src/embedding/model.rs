@@ -192,6 +192,10 @@ impl EmbeddingModel {
             },
         };
         match representation {
+            // at catalogue scale T is the embedder's alone (`embedding.sampled_softmax_from`)
+            Representation::Jsae | Representation::Raw
+                if config.samples_items(actions)
+                    && matches!(states, StateSpace::Categorical { .. }) => {}
             Representation::Jsae | Representation::Raw => {
                 let t_in = match config.transition_hidden {
                     0 => m + d,
@@ -349,6 +353,33 @@ impl EmbeddingModel {
             _ => unreachable_state(),
         };
         pre.tanh()
+    }
+
+    /// The rows of phi's table each categorical state reads, a state's factors in order
+    /// (`[batch * factors]`; empty for real states).
+    pub fn phi_rows(&self, states: &StateBatch) -> Vec<u32> {
+        match states {
+            StateBatch::Categorical { factors, data } => data
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| v + self.offsets[i % factors])
+                .collect(),
+            StateBatch::Real { .. } => Vec::new(),
+        }
+    }
+
+    /// phi of categorical states from the sum of each one's table rows (`[batch, m]`,
+    /// summed elsewhere: the embedder keeps the table on the host at catalogue scale): its
+    /// pair row added where the model has them, then tanh.
+    pub fn phi_of_row_sums(&self, summed: Tensor<2>, states: &StateBatch) -> Tensor<2> {
+        let StateBatch::Categorical { factors, .. } = states else {
+            unreachable_state()
+        };
+        let idx: Vec<i64> = self.phi_rows(states).into_iter().map(i64::from).collect();
+        match (self.pair_rows(&idx, *factors), &self.net.phi_pair) {
+            (Some(pairs), Some(table)) => (summed + table.val().select(0, pairs)).tanh(),
+            _ => summed.tanh(),
+        }
     }
 
     /// The pair row of each state (`[batch]`) from its factors' columns `idx` (offsets

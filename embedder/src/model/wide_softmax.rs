@@ -20,7 +20,7 @@ use ndarray::{Array1, Array2, ArrayView2, Axis};
 /// `targets` at them, `(softmax - onehot) / b`, in place. Returns the mean cross-entropy and
 /// `sum(gradient * logits)` (RA's gradient at its log-scale). Compiled for the widest vector
 /// instructions the CPU has (pulp's dispatch at run time), as the learner's categorical head.
-fn cross_entropy_grad(logits: &mut [f32], n: usize, targets: &[u32]) -> (f32, f32) {
+pub(crate) fn cross_entropy_grad(logits: &mut [f32], n: usize, targets: &[u32]) -> (f32, f32) {
     pulp::Arch::new().dispatch(CrossEntropyRows { logits, n, targets })
 }
 
@@ -64,7 +64,7 @@ impl pulp::WithSimd for CrossEntropyRows<'_> {
 }
 
 /// `value` as a `[1]` tensor whose gradient at each `input` is its paired constant.
-fn attach(value: f32, terms: Vec<(Tensor<2>, Array2<f32>)>) -> Tensor<1> {
+pub(crate) fn attach(value: f32, terms: Vec<(Tensor<2>, Array2<f32>)>) -> Tensor<1> {
     let mut surrogate: Option<Tensor<1>> = None;
     for (input, grad) in terms {
         let (rows, cols) = grad.dim();
@@ -88,14 +88,14 @@ fn attach(value: f32, terms: Vec<(Tensor<2>, Array2<f32>)>) -> Tensor<1> {
 }
 
 /// A `[rows, cols]` tensor's values on the host.
-fn host2(t: &Tensor<2>) -> Array2<f32> {
+pub(crate) fn host2(t: &Tensor<2>) -> Array2<f32> {
     let [rows, cols] = t.dims();
     Array2::from_shape_vec((rows, cols), nn::to_vec(t.clone()))
         .unwrap_or_else(|_| unreachable!("a tensor's values fill its shape"))
 }
 
 /// `a b` into a new array.
-fn times(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>) -> Array2<f32> {
+pub(crate) fn times(a: ArrayView2<'_, f32>, b: ArrayView2<'_, f32>) -> Array2<f32> {
     let mut c = Array2::zeros((a.nrows(), b.ncols()));
     product(a, b, c.view_mut());
     c

@@ -131,11 +131,17 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         let started = std::time::Instant::now();
         let mut logged_at = started;
         let chunks = n.div_ceil(bs);
+        // at most `logged_pretrain_max_steps` minibatches (a million items' logs are 20M
+        // purchases: one pass is 4,883 minibatches of 4,096), the last pass cut short
+        let total = (epochs * chunks).min(self.config.recommender.logged_pretrain_max_steps);
+        let epochs = total.div_ceil(chunks);
+        let mut taken = 0;
         for epoch in 1..=epochs {
             order.shuffle(&mut self.rng);
             let (mut sum, mut count) = (0.0, 0);
-            for (k, rows) in order.chunks(bs).enumerate() {
-                let done = ((epoch - 1) * chunks + k) as f64 / (epochs * chunks) as f64;
+            for rows in order.chunks(bs).take(total - taken) {
+                let done = taken as f64 / total as f64;
+                taken += 1;
                 let lr = if anneal { lr0 * (1.0 - done) } else { lr0 };
                 let (states, items) = logged.gather(rows);
                 let step = self

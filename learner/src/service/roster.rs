@@ -19,8 +19,15 @@
 //! their extra rollouts fill the round past its deadline, the silent actors are left out the
 //! same way (`training::round_completed`). With no actor present (none announced itself, or
 //! all are absent) the batch is the settings' one round (`TrainConfig::round_steps`).
+//!
+//! An actor that leaves mid-round may have delivered part of its rollout to the round, and
+//! its last fragments may still reach the learner after its stream closed: what it delivered
+//! counts on top of the batch of those present ([`Roster::departed`]), so the round still
+//! ends with the survivors' last fragments. Otherwise it would end early, and the survivors'
+//! rollouts would straddle every round after it (half of each batch stepped one policy
+//! behind, for the rest of the run).
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::BTreeMap;
 use std::time::{Duration, Instant};
 
 use jsae_settings::share_envs;
@@ -61,7 +68,11 @@ pub(super) struct Roster {
     fallback: (usize, u64),
     /// The most one actor's rollout counts for, and the largest batch.
     max: (u64, u64),
-    delivered: BTreeSet<u64>,
+    /// The env steps each actor delivered to the round (0: only dropped fragments).
+    delivered: BTreeMap<u64, u64>,
+    /// Env steps in the round from actors whose streams have closed: they count on top of
+    /// the batch.
+    departed: u64,
     clock: RoundClock,
     /// `batch_envs` where the batch is shared among the actors present.
     shared: Option<usize>,
@@ -86,7 +97,8 @@ impl Roster {
                 (default_rollout.max(1) * MAX_ROLLOUT_FACTOR).min(MAX_ROLLOUT_STEPS),
                 (default_rollout.max(1) * MAX_BATCH_ROLLOUTS).max(fallback_batch as u64),
             ),
-            delivered: BTreeSet::new(),
+            delivered: BTreeMap::new(),
+            departed: 0,
             clock: RoundClock::new(floor),
             shared: None,
             next_shares: BTreeMap::new(),
@@ -105,15 +117,41 @@ impl Roster {
         self.clock.deadline()
     }
 
-    /// A fragment of `actor` was buffered at `now`; `first`: it is the only one buffered (a
-    /// new round, or the first of a newer embedding, which emptied the round).
-    pub(super) fn buffered(&mut self, actor: u64, first: bool, now: Instant) {
+    /// A fragment of `actor`, `steps` long, was buffered at `now`; `first`: it is the only
+    /// one buffered (a new round, or the first of a newer embedding, which emptied the
+    /// round). One of an actor whose streams closed was counted before it was buffered
+    /// ([`Roster::late`]).
+    pub(super) fn buffered(&mut self, actor: u64, steps: u64, first: bool, now: Instant) {
+        let late = !self.is_open(actor);
         if first {
             self.new_round();
             self.clock.reset();
+            if late {
+                self.departed = steps;
+            }
         }
         self.delivered(actor);
+        if !late {
+            *self.delivered.entry(actor).or_default() += steps;
+        }
         self.clock.buffered(now);
+    }
+
+    /// A fragment of `actor`, `steps` long, is about to be buffered: where its streams have
+    /// closed (it was sent before the actor left) it counts on top of the batch, so that it
+    /// does not end the round in place of a survivor's fragment; whether it did.
+    pub(super) fn late(&mut self, actor: u64, steps: u64) -> bool {
+        if self.is_open(actor) {
+            return false;
+        }
+        self.departed += steps;
+        true
+    }
+
+    /// A late fragment counted by [`Roster::late`] was not buffered after all (dropped or
+    /// refused).
+    pub(super) fn not_buffered(&mut self, steps: u64) {
+        self.departed = self.departed.saturating_sub(steps);
     }
 
     /// The round reached its batch at `now`. Past its deadline (the actors that did deliver
@@ -179,6 +217,7 @@ impl Roster {
             if m.streams == 0 {
                 self.members.remove(&actor);
                 self.shares.remove(&actor);
+                self.departed += self.delivered.remove(&actor).unwrap_or(0);
             }
         }
         self.reshare();
@@ -230,7 +269,8 @@ impl Roster {
     }
 
     /// The batch: one rollout of every present actor, of its share of the environments where
-    /// the batch is shared (the fallback with none present).
+    /// the batch is shared, and what actors that left delivered to the round (the fallback
+    /// with none present).
     pub(super) fn batch_steps(&self) -> usize {
         let shares = &self.shares;
         let steps: u64 = self
@@ -248,14 +288,16 @@ impl Roster {
         if steps == 0 {
             self.fallback.0
         } else {
-            steps.min(self.max.1) as usize
+            (steps + self.departed).min(self.max.1) as usize
         }
     }
 
     /// A fragment of `actor` reached the round (buffered or dropped): the actor is present
     /// again.
     pub(super) fn delivered(&mut self, actor: u64) {
-        self.delivered.insert(actor);
+        if self.is_open(actor) {
+            self.delivered.entry(actor).or_default();
+        }
         if let Some(m) = self.members.get_mut(&actor)
             && m.absent
         {
@@ -267,6 +309,7 @@ impl Roster {
     /// The round was closed complete, or emptied (a newer embedding): a new one starts.
     fn new_round(&mut self) {
         self.delivered.clear();
+        self.departed = 0;
     }
 
     /// Whether the round waits on an actor present that has delivered nothing to it (with
@@ -274,7 +317,7 @@ impl Roster {
     pub(super) fn waits_on_someone(&self) -> bool {
         self.members
             .iter()
-            .any(|(a, m)| !m.absent && !self.delivered.contains(a))
+            .any(|(a, m)| !m.absent && !self.delivered.contains_key(a))
     }
 
     /// The round closed at its deadline: the actors that delivered nothing to it are absent
@@ -282,12 +325,12 @@ impl Roster {
     fn close_overdue(&mut self) -> Vec<u64> {
         let mut missing = Vec::new();
         for (&actor, m) in &mut self.members {
-            if !m.absent && !self.delivered.contains(&actor) {
+            if !m.absent && !self.delivered.contains_key(&actor) {
                 m.absent = true;
                 missing.push(actor);
             }
         }
-        self.delivered.clear();
+        self.new_round();
         self.reshare();
         self.round_ended();
         missing
@@ -452,6 +495,47 @@ mod tests {
         r.open(2, 2048, 16);
         assert!(r.shares().is_empty());
         assert_eq!(r.batch_steps(), 4096);
+    }
+
+    #[test]
+    fn what_an_actor_that_left_delivered_counts_on_top_of_the_survivors_batch() {
+        let now = Instant::now();
+        let mut r = Roster::new(2048, 16 * 128, Duration::ZERO).sharing(Some(16));
+        r.open(1, 16 * 128, 16);
+        r.open(2, 16 * 128, 16);
+        assert!(r.completed(now).is_empty());
+        assert_eq!(r.batch_steps(), 2048, "8 environments each");
+        r.buffered(1, 128, true, now);
+        r.buffered(1, 128, false, now);
+        r.buffered(2, 128, false, now);
+        r.close(1);
+        assert_eq!(
+            r.batch_steps(),
+            (8 + 2) * 128,
+            "actor 2's share and actor 1's two"
+        );
+        // one more of actor 1, sent before it left, reaches the learner after
+        assert!(r.late(1, 128));
+        r.buffered(1, 128, false, now);
+        assert_eq!(r.batch_steps(), (8 + 3) * 128);
+        assert!(!r.late(2, 128), "actor 2 is open");
+        // a late one dropped does not count
+        assert!(r.late(1, 128));
+        r.not_buffered(128);
+        assert_eq!(r.batch_steps(), (8 + 3) * 128);
+        assert!(r.completed(now).is_empty());
+        assert_eq!(r.batch_steps(), 2048, "actor 2 steps all 16 now");
+        // a late one that starts a round
+        assert!(r.late(1, 128));
+        r.buffered(1, 128, true, now);
+        assert_eq!(r.batch_steps(), 2048 + 128);
+        // not shared: the same on top of whole rollouts
+        let mut r = Roster::new(2048, 1024, Duration::ZERO);
+        r.open(1, 1024, 0);
+        r.open(2, 1024, 0);
+        r.buffered(1, 100, true, now);
+        r.close(1);
+        assert_eq!(r.batch_steps(), 1124);
     }
 
     #[test]

@@ -229,19 +229,35 @@ impl LearnerLoop {
         let (actor_id, len) = (f.actor_id, f.len());
         let now = Instant::now();
         self.telemetry.observe_actor_steps(actor_id, len as u64);
-        match self.run.learner_mut().ingest(f) {
+        // one sent before its actor left counts on top of the survivors' batch
+        let late = roster.late(actor_id, len as u64);
+        if late {
+            self.resize_batch(roster, now)?;
+        }
+        let buffered = match self.run.learner_mut().ingest(f) {
             Ok(Ingested::Updated(report)) => {
                 round_completed(roster, now);
                 self.publish_shares(roster);
                 self.record_update(*report)?;
+                true
             }
             Ok(Ingested::Buffered) => {
                 let first = self.run.learner().pending_steps() == len;
-                roster.buffered(actor_id, first, now);
+                roster.buffered(actor_id, len as u64, first, now);
+                true
             }
             // a dropped fragment still shows its actor alive
-            Ok(_) => roster.delivered(actor_id),
-            Err(e) => tracing::warn!("fragment refused: {e}"),
+            Ok(_) => {
+                roster.delivered(actor_id);
+                false
+            }
+            Err(e) => {
+                tracing::warn!("fragment refused: {e}");
+                false
+            }
+        };
+        if late && !buffered {
+            roster.not_buffered(len as u64);
         }
         // an absent actor that sent again is back in the batch
         self.resize_batch(roster, now)?;
