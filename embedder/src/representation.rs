@@ -133,7 +133,9 @@ impl TrainingModel {
         );
         let catalogue = (jsae
             && model.net().transition.is_none()
-            && model.config().samples_items(model.action_space()))
+            && model
+                .config()
+                .samples_items(model.state_space(), model.action_space()))
         .then(|| CatalogueTables::new(&model, seed).ok())
         .flatten()
         .map(Box::new);

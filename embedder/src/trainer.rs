@@ -232,7 +232,11 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
     /// snapshot.
     pub fn poll(&mut self) -> Result<Option<EmbeddingSnapshot>, nn::RecordError> {
         if !self.pretrained() {
-            if self.replay.len() < self.config.pretrain_budget(self.model.action_space()) {
+            if self.replay.len()
+                < self
+                    .config
+                    .pretrain_budget(self.model.state_space(), self.model.action_space())
+            {
                 return Ok(None);
             }
             self.pretrain();
@@ -258,7 +262,8 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
 
     /// Transitions pre-training waits for (`embedding.pretrain_budget`).
     pub fn pretrain_budget(&self) -> usize {
-        self.config.pretrain_budget(self.model.action_space())
+        self.config
+            .pretrain_budget(self.model.state_space(), self.model.action_space())
     }
 
     /// Pre-trains at once on `batch` (a recording's transitions: `--pretrain-from`) instead

@@ -2,7 +2,7 @@
 
 use serde::{Deserialize, Serialize};
 
-use jsae_spaces::ActionSpace;
+use jsae_spaces::{ActionSpace, StateSpace};
 
 use super::embedding_recommender::RecommenderEmbeddingConfig;
 
@@ -116,11 +116,11 @@ impl Default for EmbeddingConfig {
 impl EmbeddingConfig {
     /// Random transitions pre-training waits for with these actions: at least
     /// `pretrain_transitions`, and `pretrain_per_action` per discrete action.
-    pub fn pretrain_budget(&self, actions: &ActionSpace) -> usize {
+    pub fn pretrain_budget(&self, states: &StateSpace, actions: &ActionSpace) -> usize {
         // at catalogue scale the items learn from what follows each purchase (the sampled
         // next-item and T losses over every transition), not from each being tried: 25
         // tries of each of a million items would be 25M random steps before any learning
-        if self.samples_items(actions) {
+        if self.samples_items(states, actions) {
             return self.pretrain_transitions;
         }
         let per_action = actions
@@ -129,12 +129,17 @@ impl EmbeddingConfig {
         self.pretrain_transitions.max(per_action)
     }
 
-    /// Whether a model of these actions trains at catalogue scale (`sampled_softmax_from`).
-    pub fn samples_items(&self, actions: &ActionSpace) -> bool {
-        match actions.num_discrete() {
-            Some(n) => self.sampled_softmax_from > 0 && n >= self.sampled_softmax_from,
-            None => false,
-        }
+    /// Whether a model of these spaces trains at catalogue scale (`sampled_softmax_from`):
+    /// that many discrete actions or more, and categorical states whose last factor is an
+    /// action or none (`n + 1` values: the recommender's item bought last), which is what T
+    /// predicts there.
+    pub fn samples_items(&self, states: &StateSpace, actions: &ActionSpace) -> bool {
+        let (Some(n), StateSpace::Categorical { sizes }) = (actions.num_discrete(), states) else {
+            return false;
+        };
+        self.sampled_softmax_from > 0
+            && n >= self.sampled_softmax_from
+            && sizes.last() == Some(&(n + 1))
     }
 
     /// Width of the policy's input: `x = phi(s)`, followed by the next-item head's output
@@ -201,19 +206,31 @@ mod tests {
     fn the_pretraining_budget_grows_with_the_actions() {
         let c = EmbeddingConfig::default();
         let discrete = |n| ActionSpace::Discrete { n };
-        assert_eq!(c.pretrain_budget(&discrete(512)), 20_000);
-        assert_eq!(c.pretrain_budget(&discrete(4096)), 102_400);
+        assert_eq!(
+            c.pretrain_budget(&StateSpace::discrete(10), &discrete(512)),
+            20_000
+        );
+        assert_eq!(
+            c.pretrain_budget(&StateSpace::discrete(10), &discrete(4096)),
+            102_400
+        );
         let continuous = ActionSpace::Continuous {
             dim: 2,
             low: vec![-1.0; 2],
             high: vec![1.0; 2],
         };
-        assert_eq!(c.pretrain_budget(&continuous), 20_000);
+        assert_eq!(
+            c.pretrain_budget(&StateSpace::discrete(10), &continuous),
+            20_000
+        );
         let fixed = EmbeddingConfig {
             pretrain_per_action: 0,
             ..c
         };
-        assert_eq!(fixed.pretrain_budget(&discrete(4096)), 20_000);
+        assert_eq!(
+            fixed.pretrain_budget(&StateSpace::discrete(10), &discrete(4096)),
+            20_000
+        );
     }
 
     #[test]

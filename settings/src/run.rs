@@ -528,7 +528,8 @@ impl TrainConfig {
     /// Random transitions the embedder pre-trains on in this run (the embedding settings'
     /// budget for this environment's action space).
     pub fn pretrain_budget(&self) -> usize {
-        self.embedding.pretrain_budget(&self.spaces().1)
+        let (states, actions) = self.spaces();
+        self.embedding.pretrain_budget(&states, &actions)
     }
 
     /// The configuration as TOML (what `config.toml` holds).

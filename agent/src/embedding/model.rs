@@ -192,10 +192,6 @@ impl EmbeddingModel {
             },
         };
         match representation {
-            // at catalogue scale T is the embedder's alone (`embedding.sampled_softmax_from`)
-            Representation::Jsae | Representation::Raw
-                if config.samples_items(actions)
-                    && matches!(states, StateSpace::Categorical { .. }) => {}
             Representation::Jsae | Representation::Raw => {
                 let t_in = match config.transition_hidden {
                     0 => m + d,
@@ -204,6 +200,19 @@ impl EmbeddingModel {
                         h
                     }
                 };
+                // at catalogue scale T's output rows are the embedder's alone, on the host
+                // (`embedding.sampled_softmax_from`)
+                if config.samples_items(states, actions) {
+                    return Self::assembled(
+                        net,
+                        representation,
+                        states,
+                        actions,
+                        config,
+                        rng,
+                        device,
+                    );
+                }
                 net.transition = Some(uniform_linear(
                     t_in,
                     states.feature_len(),
@@ -219,14 +228,26 @@ impl EmbeddingModel {
                 inverse_heads(&mut net, config, actions, rng, device)
             }
         }
+        Self::assembled(net, representation, states, actions, config, rng, device)
+    }
+
+    /// The model from its network so far: the item heads drawn last, then the rest.
+    fn assembled(
+        mut net: EmbeddingNet,
+        representation: Representation,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        config: &EmbeddingConfig,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
         item_heads(&mut net, config, states, rng, device);
-        let offsets = factor_offsets(states);
         Self {
             net,
             representation,
             states: states.clone(),
             actions: actions.clone(),
-            offsets,
+            offsets: factor_offsets(states),
             config: config.clone(),
             device: device.clone(),
         }

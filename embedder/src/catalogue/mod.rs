@@ -5,15 +5,15 @@
 //! next state's last factor (`[values, width]` and a bias), live on the host; a minibatch
 //! gathers the rows it reads, the two heads (T's and the next-item head's) score the item
 //! that follows and `negatives` drawn items ([`sampled`]), and lazy Adam steps only the rows
-//! that took a gradient (with decoupled weight decay on those rows). The rest of the model
+//! that took a gradient (with weight decay on those rows). The rest of the model
 //! (phi's pair rows, T's hidden layer, the next-item head and its scale) stays in burn and
 //! its optimiser, reached through the tables' rows as leaves of the graph.
 //!
 //! T predicts the next state's last factor only: in the recommender the other factors are
 //! the state's own items, shifted, and a prediction of them would cost a softmax over the
-//! catalogue each for nothing to learn. T lives only here: snapshots carry phi, g and the
-//! heads the policy reads (written from the host tables), and an embedder restarted from a
-//! snapshot fits a fresh T.
+//! catalogue each for nothing to learn. T's output rows live only here: snapshots carry
+//! phi, g and the heads the policy reads (the tables written from the host), and an embedder
+//! restarted from a snapshot draws T's rows afresh.
 
 mod sampled;
 
@@ -120,7 +120,8 @@ pub(crate) struct CatalogueTables {
     proposal: Proposal,
     rng: ChaCha8Rng,
     negatives: usize,
-    weight_decay: f32,
+    /// `embedding.weight_decay`, and whether it is decoupled (AdamW's) or L2 (Adam's).
+    weight_decay: (f32, bool),
 }
 
 /// One minibatch as the catalogue path reads it.
@@ -213,11 +214,7 @@ impl CatalogueTables {
             proposal: Proposal::new(values),
             rng,
             negatives: config.negatives,
-            weight_decay: if config.decoupled_weight_decay {
-                config.weight_decay
-            } else {
-                0.0
-            },
+            weight_decay: (config.weight_decay, config.decoupled_weight_decay),
         })
     }
 
@@ -436,7 +433,7 @@ impl CatalogueTables {
         f
     }
 
-    /// Lazy Adam on the rows that took a gradient (after decoupled weight decay on them);
+    /// Lazy Adam on the rows that took a gradient (after weight decay on them);
     /// their gradients zeroed.
     fn step_tables(&mut self, lr: f32) {
         let tables = [
@@ -452,12 +449,19 @@ impl CatalogueTables {
             &mut self.t_weight,
             &mut self.t_bias,
         ];
-        let decay = 1.0 - lr * self.weight_decay;
+        // weight decay on those rows: decoupled (`p -= lr wd p`) or L2 (`g += wd p`)
+        let (wd, decoupled) = self.weight_decay;
         for (t, rows) in tables.iter_mut().zip(&touched) {
             let w = t.width;
             for &r in rows {
-                for v in &mut t.values[r as usize * w..(r as usize + 1) * w] {
-                    *v *= decay;
+                let at = r as usize * w..(r as usize + 1) * w;
+                let (values, grad) = (&mut t.values[at.clone()], &mut t.grad[at]);
+                for (v, g) in values.iter_mut().zip(grad) {
+                    if decoupled {
+                        *v *= 1.0 - lr * wd;
+                    } else {
+                        *g += wd * *v;
+                    }
                 }
             }
         }
@@ -491,7 +495,8 @@ impl CatalogueTables {
         out
     }
 
-    /// Takes phi's and g's tables from `model` (a restored snapshot; T starts afresh).
+    /// Takes phi's and g's tables from `model` (a restored snapshot or a warm start; T's
+    /// rows stay as they were drawn, the moments start afresh).
     pub(crate) fn read_from(&mut self, model: &EmbeddingModel) {
         if let Some(phi) = &model.net().phi_table {
             self.phi = Table::new(nn::to_vec(phi.val()), self.phi.width);

@@ -229,3 +229,153 @@ fn a_catalogue_scale_model_learns_what_follows_and_snapshots_without_t() {
     assert_eq!(d, 16);
     close(&table, &host);
 }
+
+/// The sampled loss computed the plain way, in f64: each row's target (less its
+/// `ln(K Q)`) against every draw that is not the target (less theirs).
+fn plain_sampled_loss(
+    h: &Array2<f32>,
+    rows: &Rows,
+    score: Score,
+    c: &Candidates,
+    log_kq: &dyn Fn(u32) -> f64,
+) -> f64 {
+    let s = |i: usize, z: ndarray::ArrayView1<'_, f32>, bias: f32| -> f64 {
+        let (h, z) = (h.row(i), z);
+        match score {
+            Score::Linear => {
+                h.iter().zip(z).map(|(a, b)| f64::from(a * b)).sum::<f64>() + f64::from(bias)
+            }
+            Score::Distance { scale } => {
+                -f64::from(scale)
+                    * h.iter()
+                        .zip(z)
+                        .map(|(a, b)| f64::from(a - b).powi(2))
+                        .sum::<f64>()
+            }
+        }
+    };
+    let mut total = 0.0;
+    for i in 0..h.nrows() {
+        let t = c.targets[i];
+        let bias = rows.target_bias.get(i).copied().unwrap_or(0.0);
+        let picked = s(i, rows.targets.row(i), bias) - log_kq(t);
+        let mut logits = vec![picked];
+        for (j, &v) in c.shared.iter().enumerate() {
+            if v != t && rows.valid[j] {
+                let bias = rows.shared_bias.get(j).copied().unwrap_or(0.0);
+                logits.push(s(i, rows.shared.row(j), bias) - log_kq(v));
+            }
+        }
+        let max = logits.iter().copied().fold(f64::MIN, f64::max);
+        let lse = max + logits.iter().map(|l| (l - max).exp()).sum::<f64>().ln();
+        total += lse - picked;
+    }
+    total / h.nrows() as f64
+}
+
+#[test]
+fn the_sampled_loss_and_its_gradients_are_the_plain_ones() {
+    let mut rng = ChaCha8Rng::seed_from_u64(6);
+    let values = 30;
+    let mut proposal = Proposal::new(values);
+    proposal.observe(&[1, 1, 1, 2, 5, 5, 9]);
+    let targets: Vec<u32> = (0..B).map(|_| rng.random_range(0..values as u32)).collect();
+    let k = 20;
+    let c = Candidates::draw(&proposal, k, targets.clone(), &mut rng);
+    assert!(
+        targets.iter().any(|t| c.shared.contains(t)),
+        "a draw equal to a target (masked in its row): {:?} {targets:?}",
+        c.shared
+    );
+    let log_kq = |v: u32| (k as f64 * proposal.probability(v)).ln();
+    for score in [Score::Linear, Score::Distance { scale: 1.3 }] {
+        let linear = matches!(score, Score::Linear);
+        let mut valid = vec![true; k];
+        if !linear {
+            valid[0] = false; // a draw without a row in the head
+        }
+        let rows = Rows {
+            shared: random(k, W, &mut rng),
+            targets: random(B, W, &mut rng),
+            shared_bias: if linear {
+                (0..k).map(|_| rng.random_range(-1.0..1.0)).collect()
+            } else {
+                Vec::new()
+            },
+            target_bias: if linear {
+                (0..B).map(|_| rng.random_range(-1.0..1.0)).collect()
+            } else {
+                Vec::new()
+            },
+            valid,
+        };
+        let h = random(B, W, &mut rng);
+        let got = sampled_cross_entropy(h.view(), &rows, score, &c);
+        let plain = plain_sampled_loss(&h, &rows, score, &c, &log_kq);
+        assert!(
+            (f64::from(got.loss) - plain).abs() < 1e-4,
+            "{} against {plain}",
+            got.loss
+        );
+        // central differences of the plain loss at h, at the rows and at the scale
+        let eps = 1e-2f32;
+        let numeric = |bump: &Bump<'_>| {
+            let (mut h1, mut r1, mut s1) = (h.clone(), clone_rows(&rows), score);
+            bump(&mut h1, &mut r1, &mut s1, eps);
+            let (mut h2, mut r2, mut s2) = (h.clone(), clone_rows(&rows), score);
+            bump(&mut h2, &mut r2, &mut s2, -eps);
+            (plain_sampled_loss(&h1, &r1, s1, &c, &log_kq)
+                - plain_sampled_loss(&h2, &r2, s2, &c, &log_kq))
+                / (2.0 * f64::from(eps))
+        };
+        let near = |analytic: f32, numeric: f64| {
+            assert!(
+                (f64::from(analytic) - numeric).abs() < 2e-3 + 1e-2 * numeric.abs(),
+                "{analytic} against {numeric}"
+            )
+        };
+        for (i, j) in [(0, 0), (B - 1, W - 1)] {
+            near(got.d_h[[i, j]], numeric(&|h, _, _, e| h[[i, j]] += e));
+            near(
+                got.d_targets[[i, j]],
+                numeric(&|_, r, _, e| r.targets[[i, j]] += e),
+            );
+        }
+        for j in 0..k {
+            near(
+                got.d_shared[[j, 1]],
+                numeric(&|_, r, _, e| r.shared[[j, 1]] += e),
+            );
+        }
+        if linear {
+            near(
+                got.d_shared_bias[3],
+                numeric(&|_, r, _, e| r.shared_bias[3] += e),
+            );
+            near(
+                got.d_target_bias[2],
+                numeric(&|_, r, _, e| r.target_bias[2] += e),
+            );
+        } else {
+            let bump = |_: &mut Array2<f32>, _: &mut Rows, s: &mut Score, e: f32| {
+                if let Score::Distance { scale } = s {
+                    *scale *= e.exp();
+                }
+            };
+            near(got.d_log_scale, numeric(&bump));
+        }
+    }
+}
+
+/// A change of size `eps` to one input of the plain loss.
+type Bump<'a> = dyn Fn(&mut Array2<f32>, &mut Rows, &mut Score, f32) + 'a;
+
+fn clone_rows(r: &Rows) -> Rows {
+    Rows {
+        shared: r.shared.clone(),
+        targets: r.targets.clone(),
+        shared_bias: r.shared_bias.clone(),
+        target_bias: r.target_bias.clone(),
+        valid: r.valid.clone(),
+    }
+}
