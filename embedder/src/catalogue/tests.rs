@@ -379,3 +379,54 @@ fn clone_rows(r: &Rows) -> Rows {
         valid: r.valid.clone(),
     }
 }
+
+/// Continuous updates at catalogue scale: after pre-training, new transitions make a new
+/// version through the same sampled step.
+#[test]
+fn a_catalogue_scale_trainer_keeps_updating_after_pretraining() {
+    let n = 500u32;
+    let mut config = EmbeddingConfig {
+        state_dim: 8,
+        action_dim: 8,
+        sampled_softmax_from: 100,
+        negatives: 64,
+        batch_size: 128,
+        pretrain_transitions: 256,
+        pretrain_epochs: 2,
+        update_every: 256,
+        update_steps: 3,
+        ..EmbeddingConfig::default()
+    };
+    config.recommender.next_item_coef = 1.0;
+    let states = StateSpace::Categorical {
+        sizes: vec![n as usize + 1; 2],
+    };
+    let actions = ActionSpace::Discrete { n: n as usize };
+    let mut t = crate::EmbedderTrainer::new(
+        config,
+        Representation::Jsae,
+        &states,
+        &actions,
+        1,
+        jsae_nn::DeviceKind::Flex,
+    );
+    assert!(t.model().at_catalogue_scale());
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let transitions = |rng: &mut ChaCha8Rng| {
+        let mb = successor_batch(n, 256, rng);
+        jsae_wire::TransitionBatch {
+            actor_id: 1,
+            states: mb.states,
+            actions: mb.actions,
+            rewards: vec![0.0; 256],
+            next_states: mb.next_states,
+            terminated: vec![false; 256],
+        }
+    };
+    t.ingest(&transitions(&mut rng)).expect("valid");
+    let first = t.poll().expect("serialises").expect("pre-trained");
+    t.ingest(&transitions(&mut rng)).expect("valid");
+    let next = t.poll().expect("serialises").expect("an update is due");
+    assert_eq!((first.version, next.version), (1, 2));
+    assert_ne!(first.bytes, next.bytes, "the update moved the tables");
+}

@@ -22,12 +22,10 @@
 //!
 //! An actor that leaves mid-round may have delivered part of its rollout to the round, and
 //! its last fragments may still reach the learner after its stream closed: what it delivered
-//! counts on top of the batch of those present ([`Roster::departed`]), so the round still
-//! ends with the survivors' last fragments. Otherwise it would end early, and the survivors'
-//! rollouts would straddle every round after it (half of each batch stepped one policy
-//! behind, for the rest of the run).
+//! counts on top of the batch of those present (`departed`), so the round still ends with
+//! the survivors' last fragments; ended early, every later batch would straddle two policies.
 
-use std::collections::BTreeMap;
+use std::collections::{BTreeMap, VecDeque};
 use std::time::{Duration, Instant};
 
 use jsae_settings::share_envs;
@@ -47,6 +45,9 @@ pub const MAX_BATCH_ROLLOUTS: u64 = 64;
 /// A round's deadline is this many times the slowest recent round's spread (from its first
 /// fragment to its last), never less than the floor.
 pub const DEADLINE_FACTOR: u32 = 3;
+
+/// Actors that left which the roster remembers (their late fragments count on top).
+const LEFT_KEPT: usize = 64;
 
 #[derive(Debug, Clone, Copy)]
 struct Member {
@@ -73,6 +74,9 @@ pub(super) struct Roster {
     /// Env steps in the round from actors whose streams have closed: they count on top of
     /// the batch.
     departed: u64,
+    /// The last actors whose streams all closed (at most [`LEFT_KEPT`]): their fragments are
+    /// late. One that never opened a stream (a client that only pushes) counts as before.
+    left: VecDeque<u64>,
     clock: RoundClock,
     /// `batch_envs` where the batch is shared among the actors present.
     shared: Option<usize>,
@@ -99,6 +103,7 @@ impl Roster {
             ),
             delivered: BTreeMap::new(),
             departed: 0,
+            left: VecDeque::new(),
             clock: RoundClock::new(floor),
             shared: None,
             next_shares: BTreeMap::new(),
@@ -122,7 +127,7 @@ impl Roster {
     /// round). One of an actor whose streams closed was counted before it was buffered
     /// ([`Roster::late`]).
     pub(super) fn buffered(&mut self, actor: u64, steps: u64, first: bool, now: Instant) {
-        let late = !self.is_open(actor);
+        let late = self.has_left(actor);
         if first {
             self.new_round();
             self.clock.reset();
@@ -131,7 +136,7 @@ impl Roster {
             }
         }
         self.delivered(actor);
-        if !late {
+        if self.is_open(actor) {
             *self.delivered.entry(actor).or_default() += steps;
         }
         self.clock.buffered(now);
@@ -141,15 +146,14 @@ impl Roster {
     /// closed (it was sent before the actor left) it counts on top of the batch, so that it
     /// does not end the round in place of a survivor's fragment; whether it did.
     pub(super) fn late(&mut self, actor: u64, steps: u64) -> bool {
-        if self.is_open(actor) {
+        if !self.has_left(actor) {
             return false;
         }
         self.departed += steps;
         true
     }
 
-    /// A late fragment counted by [`Roster::late`] was not buffered after all (dropped or
-    /// refused).
+    /// A late fragment counted by [`Roster::late`] was not buffered (dropped or refused).
     pub(super) fn not_buffered(&mut self, steps: u64) {
         self.departed = self.departed.saturating_sub(steps);
     }
@@ -218,9 +222,18 @@ impl Roster {
                 self.members.remove(&actor);
                 self.shares.remove(&actor);
                 self.departed += self.delivered.remove(&actor).unwrap_or(0);
+                self.left.push_back(actor);
+                if self.left.len() > LEFT_KEPT {
+                    self.left.pop_front();
+                }
             }
         }
         self.reshare();
+    }
+
+    /// Whether `actor`'s streams have all closed lately (`left`).
+    fn has_left(&self, actor: u64) -> bool {
+        !self.is_open(actor) && self.left.contains(&actor)
     }
 
     /// Whether `actor` has a policy stream open.
@@ -529,6 +542,8 @@ mod tests {
         assert!(r.late(1, 128));
         r.buffered(1, 128, true, now);
         assert_eq!(r.batch_steps(), 2048 + 128);
+        // an actor that never opened a stream (a client that only pushes) is not late
+        assert!(!r.late(9, 128));
         // not shared: the same on top of whole rollouts
         let mut r = Roster::new(2048, 1024, Duration::ZERO);
         r.open(1, 1024, 0);
