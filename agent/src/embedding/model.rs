@@ -390,14 +390,12 @@ impl EmbeddingModel {
     }
 
     /// phi of categorical states from the sum of each one's table rows (`[batch, m]`,
-    /// summed elsewhere: the embedder keeps the table on the host at catalogue scale): its
-    /// pair row added where the model has them, then tanh.
-    pub fn phi_of_row_sums(&self, summed: Tensor<2>, states: &StateBatch) -> Tensor<2> {
-        let StateBatch::Categorical { factors, .. } = states else {
-            unreachable_state()
-        };
-        let idx: Vec<i64> = self.phi_rows(states).into_iter().map(i64::from).collect();
-        match (self.pair_rows(&idx, *factors), &self.net.phi_pair) {
+    /// summed elsewhere: the embedder keeps the table on the host at catalogue scale) and
+    /// those rows ([`Self::phi_rows`], `factors` to a state): its pair row added where the
+    /// model has them, then tanh.
+    pub fn phi_of_row_sums(&self, summed: Tensor<2>, rows: &[u32], factors: usize) -> Tensor<2> {
+        let idx: Vec<i64> = rows.iter().map(|&r| i64::from(r)).collect();
+        match (self.pair_rows(&idx, factors), &self.net.phi_pair) {
             (Some(pairs), Some(table)) => (summed + table.val().select(0, pairs)).tanh(),
             _ => summed.tanh(),
         }

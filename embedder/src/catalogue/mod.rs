@@ -356,7 +356,7 @@ impl CatalogueTables {
             }
         }
         let phi_sum = nn::tensor2(summed, b, m, &device).require_grad();
-        let x = model.phi_of_row_sums(phi_sum.clone(), batch.states);
+        let x = model.phi_of_row_sums(phi_sum.clone(), &phi_rows, factors);
         let mut f = Forward {
             loss: 0.0,
             total: None,
