@@ -13,8 +13,6 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, Normal};
 use usearch::{Index, IndexOptions, MetricKind, ScalarKind};
 
-use crate::NearestAction;
-
 /// How the approximate index is built and how widely it searches.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ApproxSettings {
@@ -74,6 +72,21 @@ pub fn recall(got: &[(u32, f32)], want: &[(u32, f32)]) -> f64 {
         .filter(|(a, _)| got.iter().any(|(b, _)| a == b))
         .count();
     hits as f64 / want.len() as f64
+}
+
+/// The exact `k` nearest rows of a row-major `[n, d]` table to `q`, nearest first, as
+/// `(row, squared distance)`.
+fn scan_rows(table: &[f32], d: usize, q: &[f32], k: usize) -> Vec<(u32, f32)> {
+    let mut best: Vec<(u32, f32)> = Vec::with_capacity(k + 1);
+    for (a, row) in table.chunks_exact(d).enumerate() {
+        let dist: f32 = row.iter().zip(q).map(|(x, y)| (x - y) * (x - y)).sum();
+        if best.len() < k || best.last().is_some_and(|b| dist < b.1) {
+            let at = best.partition_point(|b| b.1 <= dist);
+            best.insert(at, (a as u32, dist));
+            best.truncate(k);
+        }
+    }
+    best
 }
 
 /// Thread slots reserved for searches.
@@ -170,10 +183,11 @@ impl ApproxNearest {
     /// reaches the target or the width its maximum.
     fn calibrate(&mut self, table: &[f32], settings: &ApproxSettings) {
         let queries = calibration_queries(table, self.dim, settings);
-        let exact = NearestAction::new(table, self.dim);
+        // the exact answers by a scan of the rows as they are: the scan's own index would
+        // copy the table (256 MB at a million items of width 64) while the graph is held
         let want: Vec<Vec<(u32, f32)>> = queries
             .chunks_exact(self.dim)
-            .map(|q| exact.k_nearest(q, 10, self.len))
+            .map(|q| scan_rows(table, self.dim, q, 10))
             .collect();
         let mut width = 16.min(settings.max_expansion_search.max(1));
         loop {

@@ -159,6 +159,30 @@ impl Weights {
         true
     }
 
+    /// [`Self::decode_embedding`] of a snapshot the caller gives up (its bytes are not
+    /// copied, and are dropped before f's index is built), an approximate index built by
+    /// `index_threads` threads (0: every core).
+    pub fn decode_owned_embedding(
+        &self,
+        snapshot: EmbeddingSnapshot,
+        index_threads: usize,
+    ) -> Result<Embedding, SwapError> {
+        let version = snapshot.version;
+        Embedding::from_owned_snapshot(
+            &self.config.embedding,
+            self.config.algo.representation(),
+            &self.states,
+            &self.actions,
+            (snapshot, index_threads),
+            &self.device,
+        )
+        .map_err(|source| SwapError {
+            kind: "embedding",
+            version,
+            source,
+        })
+    }
+
     /// Decodes `snapshot` for these weights' settings and spaces without installing it (f's
     /// index is built here: minutes at a million actions).
     pub fn decode_embedding(&self, snapshot: &EmbeddingSnapshot) -> Result<Embedding, SwapError> {

@@ -1,7 +1,9 @@
 //! `jsae bench --catalogue [--items LIST] [--json]`: the recommender at catalogue scale, one
 //! row per size: the generated catalogue's sessions (`jsae_envs::recsys::large_catalogue`),
-//! and f over its items, the approximate index (build time, recall@10 against the exact scan,
-//! search latency) beside the exact scan measured in the same run, one thread each.
+//! the `jsae recommender` process serving it at a fixed load (`catalogue_serving`), f over
+//! its items, the approximate index (build time, recall@10 against the exact scan, search
+//! latency) beside the exact scan measured in the same run, one thread each, PPO's
+//! categorical head and the embedder's step (`catalogue_embedder`).
 //!
 //! The item embeddings are a stand-in until the embedder trains at these sizes: each item at
 //! its category's centre plus noise (a trained g groups items bought together, which the
@@ -63,9 +65,39 @@ pub struct CatalogueRow {
     pub exact_p99_ms: f64,
     /// Bytes the index holds, MiB.
     pub ann_mib: f64,
-    /// This process's resident memory with the index, the exact scan's table and the
+    /// This bench's resident memory with the index, the exact scan's table and the
     /// embeddings held, MiB.
+    pub bench_rss_mib: f64,
+    /// The `jsae recommender` process serving a JSAE policy over the catalogue
+    /// (`catalogue_serving`): seconds from its start to its first answer.
+    pub recommender_load_s: f64,
+    /// Requests a second offered to it, open loop, over loopback gRPC.
+    pub offered_rps: f64,
+    /// Requests answered, of those offered.
+    pub recommend_answered: usize,
+    /// See `recommend_answered`.
+    pub recommend_sent: usize,
+    /// `Recommend` latency at that load: median, milliseconds.
+    pub recommend_p50_ms: f64,
+    /// See `recommend_p50_ms`: 99th percentile.
+    pub recommend_p99_ms: f64,
+    /// The Recommender process's peak resident memory through its start and the load, MiB.
     pub rss_mib: f64,
+    /// Its resident memory at the end of the load (serving, nothing being loaded), MiB.
+    pub serving_rss_mib: f64,
+    /// Seconds until a new embedding written to its run directory answered, under the load.
+    pub swap_s: f64,
+    /// `Recommend` latency meanwhile: median and 99th percentile, milliseconds.
+    pub swap_p50_ms: f64,
+    /// See `swap_p50_ms`.
+    pub swap_p99_ms: f64,
+    /// The Recommender's peak resident memory through the swap (two embeddings held), MiB.
+    pub swap_rss_mib: f64,
+    /// Whether it refused an embedding of another catalogue and kept the one in use.
+    pub refused_other_catalogue: bool,
+    /// JSAE training's environment steps per second at this size (None: not measured by
+    /// this bench; `docs/src/recommender/catalogue-scale.md` has the runs).
+    pub train_env_steps_per_s: Option<f64>,
     /// PPO with a categorical head over every item (64-wide input, the default hidden
     /// layers, fused update): milliseconds per update of 2,048 samples.
     pub ppo_categorical_update_ms: f64,
@@ -147,6 +179,7 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
         items,
         ..LargeCatalogueConfig::default()
     };
+    let serving = crate::catalogue_serving::measure(items, if quick { 2.0 } else { 10.0 })?;
     let t = Instant::now();
     let catalogue = LargeCatalogue::new(&config).map_err(anyhow::Error::msg)?;
     let stats = catalogue.stats();
@@ -174,7 +207,7 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
     let (ann_p50_ms, ann_p99_ms) = time_each(&queries, EMBEDDING_DIM, |q| {
         got.push(approx.k_nearest(q, K, n));
     });
-    let (ann_expansion_search, ann_mib, rss_mib) = (
+    let (ann_expansion_search, ann_mib, bench_rss_mib) = (
         approx.expansion_search(),
         approx.memory_bytes() as f64 / 1_048_576.0,
         crate::recommender::rss_mib(),
@@ -205,7 +238,21 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
         exact_p50_ms,
         exact_p99_ms,
         ann_mib,
-        rss_mib,
+        bench_rss_mib,
+        recommender_load_s: serving.load_s,
+        offered_rps: serving.offered_rps,
+        recommend_answered: serving.answered,
+        recommend_sent: serving.sent,
+        recommend_p50_ms: serving.p50_ms,
+        recommend_p99_ms: serving.p99_ms,
+        rss_mib: serving.rss_mib,
+        serving_rss_mib: serving.serving_rss_mib,
+        swap_s: serving.swap_s,
+        swap_p50_ms: serving.swap_p50_ms,
+        swap_p99_ms: serving.swap_p99_ms,
+        swap_rss_mib: serving.swap_rss_mib,
+        refused_other_catalogue: serving.refused_other_catalogue,
+        train_env_steps_per_s: None,
         ppo_categorical_update_ms,
         ppo_categorical_mib,
         embedder_step_ms: embedder.step_ms,
@@ -244,7 +291,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
             "ann p99",
             "scan p50",
             "scan p99",
-            "rss MiB",
+            "bnch MiB",
             "ppo ms",
             "ppo MiB",
             "emb ms",
@@ -272,11 +319,28 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
                 row.ann_p99_ms,
                 row.exact_p50_ms,
                 row.exact_p99_ms,
-                row.rss_mib,
+                row.bench_rss_mib,
                 row.ppo_categorical_update_ms,
                 row.ppo_categorical_mib,
                 row.embedder_step_ms,
                 row.embedder_mib
+            );
+            println!(
+                "{:>9} jsae recommender: first answer after {:.1} s; {:.0} requests/s offered, {} of {} answered, p50 {:.3} ms, p99 {:.3} ms, peak RSS {:.0} MiB ({:.0} MiB serving); a new embedding answered after {:.1} s under the load, p50 {:.3} ms, p99 {:.3} ms meanwhile, peak RSS {:.0} MiB; another catalogue's embedding refused: {}",
+                "",
+                row.recommender_load_s,
+                row.offered_rps,
+                row.recommend_answered,
+                row.recommend_sent,
+                row.recommend_p50_ms,
+                row.recommend_p99_ms,
+                row.rss_mib,
+                row.serving_rss_mib,
+                row.swap_s,
+                row.swap_p50_ms,
+                row.swap_p99_ms,
+                row.swap_rss_mib,
+                row.refused_other_catalogue
             );
         }
     }

@@ -6,6 +6,7 @@
 
 pub mod catalogue;
 pub mod catalogue_embedder;
+pub mod catalogue_serving;
 pub mod learner;
 pub mod mujoco;
 pub mod recommender;

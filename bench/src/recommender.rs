@@ -72,7 +72,7 @@ fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>
             &mut rng,
             &device,
         );
-        rec.set_embedding(&EmbeddingSnapshot {
+        rec.set_embedding(EmbeddingSnapshot {
             version: 1,
             bytes: model.to_bytes()?,
             model_loss: 0.0,
@@ -143,7 +143,15 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
         .worker_threads(2)
         .enable_all()
         .build()?;
-    let fixed = fixed_load(&client_rt, &url, &histories, seconds.min(5.0));
+    let fixed = open_loop(
+        &client_rt,
+        &url,
+        &histories,
+        (seconds.min(5.0), 0.5),
+        OFFERED_PER_S,
+        K,
+    )
+    .map(|answers| summary(&answers));
     let result = client_rt.block_on(async {
         let channel = tonic::transport::Endpoint::from_shared(url)?
             .tcp_nodelay(true)
@@ -184,8 +192,7 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
     });
     let _ = stop_tx.send(());
     let _ = server_rt.block_on(server);
-    let (sent, answered, mut fixed) = fixed?;
-    fixed.sort_by(f64::total_cmp);
+    let (sent, answered, fixed) = fixed?;
     let mut latencies = result?;
     latencies.sort_by(f64::total_cmp);
     Ok(RecommendRates {
@@ -204,25 +211,47 @@ pub fn measure(algo: Algo, seconds: f64) -> anyhow::Result<RecommendRates> {
     })
 }
 
-/// Open-loop load at [`OFFERED_PER_S`] for `seconds` (after half a second of the same
-/// load as warm-up): a pacing thread releases each request at its scheduled time (sleeping
-/// in between), the runtime sends it on one shared HTTP/2 channel; the latency of each
-/// request counts from its scheduled time, and one that fails or is not answered within 5 s
-/// of the last release counts as infinitely late. Returns (sent, answered, latencies in ms).
-fn fixed_load(
+/// One request of an open-loop load.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Answer {
+    /// When it was due to leave.
+    pub due: Instant,
+    /// Milliseconds from then to its answer (infinite: failed, or not answered in time).
+    pub ms: f64,
+    /// The embedding version of the answer (0: none).
+    pub embedding_version: u64,
+}
+
+/// Requests offered, requests answered and every latency (ms, sorted) of `answers`.
+pub(crate) fn summary(answers: &[Answer]) -> (usize, usize, Vec<f64>) {
+    let mut ms: Vec<f64> = answers.iter().map(|a| a.ms).collect();
+    ms.sort_by(f64::total_cmp);
+    let answered = ms.iter().filter(|m| m.is_finite()).count();
+    (answers.len(), answered, ms)
+}
+
+/// Open-loop load of `per_s` requests a second for `seconds`, after `warm_s` seconds of the
+/// same load whose requests are not returned, each asking for `k` items: a pacing thread
+/// releases each request at its scheduled time (sleeping in between), the runtime sends it
+/// on one shared HTTP/2 channel; the latency of each request counts from its scheduled
+/// time, and one that fails or is not answered within 5 s of the last release counts as
+/// infinitely late.
+pub(crate) fn open_loop(
     rt: &tokio::runtime::Runtime,
     url: &str,
     histories: &Arc<Vec<Vec<String>>>,
-    seconds: f64,
-) -> anyhow::Result<(usize, usize, Vec<f64>)> {
+    (seconds, warm_s): (f64, f64),
+    per_s: f64,
+    k: u32,
+) -> anyhow::Result<Vec<Answer>> {
     let channel = rt.block_on(
         tonic::transport::Endpoint::from_shared(url.to_owned())?
             .tcp_nodelay(true)
             .connect(),
     )?;
-    let interval = Duration::from_secs_f64(1.0 / OFFERED_PER_S);
-    let warm = (OFFERED_PER_S * 0.5) as usize;
-    let total = warm + (OFFERED_PER_S * seconds) as usize;
+    let interval = Duration::from_secs_f64(1.0 / per_s);
+    let warm = (per_s * warm_s) as usize;
+    let total = warm + (per_s * seconds) as usize;
     let start = Instant::now() + Duration::from_millis(10);
     let mut calls = Vec::with_capacity(total);
     for i in 0..total {
@@ -234,29 +263,38 @@ fn fixed_load(
         let mut client = pb::recommender_client::RecommenderClient::new(channel.clone());
         let request = pb::RecommendRequest {
             history: histories[i % histories.len()].clone(),
-            k: K,
+            k,
         };
-        calls.push(rt.spawn(async move {
-            let answered = client.recommend(request).await.is_ok();
-            answered.then(|| due.elapsed().as_secs_f64() * 1000.0)
-        }));
+        calls.push((
+            due,
+            rt.spawn(async move {
+                let answer = client.recommend(request).await.ok()?;
+                Some((
+                    due.elapsed().as_secs_f64() * 1000.0,
+                    answer.into_inner().embedding_version,
+                ))
+            }),
+        ));
     }
     let measured = calls.split_off(warm);
-    let latencies = rt.block_on(async {
+    Ok(rt.block_on(async {
         let deadline = tokio::time::Instant::now() + Duration::from_secs(5);
         let mut all = Vec::with_capacity(measured.len());
-        for call in measured {
-            let latency = tokio::time::timeout_at(deadline, call).await;
-            all.push(latency.ok().and_then(Result::ok).flatten());
+        for (due, call) in measured {
+            let answer = tokio::time::timeout_at(deadline, call).await;
+            let (ms, embedding_version) = answer
+                .ok()
+                .and_then(Result::ok)
+                .flatten()
+                .unwrap_or((f64::INFINITY, 0));
+            all.push(Answer {
+                due,
+                ms,
+                embedding_version,
+            });
         }
         all
-    });
-    let answered = latencies.iter().filter(|l| l.is_some()).count();
-    let latencies = latencies
-        .into_iter()
-        .map(|l| l.unwrap_or(f64::INFINITY))
-        .collect();
-    Ok((total - warm, answered, latencies))
+    }))
 }
 
 pub(crate) fn rss_mib() -> f64 {

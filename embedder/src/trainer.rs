@@ -362,7 +362,13 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
     pub fn snapshot(&self) -> Result<EmbeddingSnapshot, nn::RecordError> {
         Ok(EmbeddingSnapshot {
             version: self.stats.version,
-            bytes: self.model.snapshot_bytes()?,
+            bytes: {
+                let mut bytes = self.model.snapshot_bytes()?;
+                if let Some(tag) = self.logged.as_ref().and_then(|l| l.catalogue) {
+                    tag.append_to(&mut bytes);
+                }
+                bytes
+            },
             model_loss: self.stats.model_loss,
             decoder_loss: self.stats.decoder_loss,
             action_structure: self.stats.action_structure,

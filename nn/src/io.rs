@@ -40,7 +40,13 @@ pub fn into_bytes<M: Module>(module: &M) -> Result<Vec<u8>, RecordError> {
 
 /// Loads weights from bytes into a module of the same structure (checked on load).
 pub fn from_bytes<M: Module>(module: M, bytes: &[u8]) -> Result<M, RecordError> {
-    let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes.to_vec()))
+    from_owned_bytes(module, bytes.to_vec())
+}
+
+/// [`from_bytes`] from bytes the caller gives up: no copy of them is made (a snapshot of a
+/// million items' tables is hundreds of MB).
+pub fn from_owned_bytes<M: Module>(module: M, bytes: Vec<u8>) -> Result<M, RecordError> {
+    let record = ModuleRecord::from_bytes(Bytes::from_bytes_vec(bytes))
         .map_err(|e| RecordError(e.to_string()))?;
     module
         .try_load_record(record)

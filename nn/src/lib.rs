@@ -27,6 +27,6 @@ pub use host::{
     SparseRows, clip_scale, global_norm, pair_bucket,
 };
 pub use init::{linear_from_host, orthogonal, seeded_linear};
-pub use io::{RecordError, from_bytes, into_bytes, tensor1, tensor2, to_vec};
+pub use io::{RecordError, from_bytes, from_owned_bytes, into_bytes, tensor1, tensor2, to_vec};
 pub use mlp::{Mlp, MlpConfig, replaced};
 pub use obs_norm::ObsNorm;

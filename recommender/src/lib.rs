@@ -29,7 +29,7 @@ pub mod submit;
 
 pub use cli::{RecommenderArgs, main};
 pub use grpc::{RecommenderService, serve};
-pub use scoring::{MAX_HISTORY, Recommendation, Recommender};
+pub use scoring::{MAX_HISTORY, Recommendation, Recommender, catalogue_tag};
 pub use session_wire::{session_from_wire, session_to_wire};
 pub use sources::{WeightSources, load_run};
 pub use submit::{

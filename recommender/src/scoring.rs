@@ -8,8 +8,12 @@
 //!   of the policy's softmax (score: the probability).
 //! - A reference policy (`--policy most-likely|item-knn|popular`) ranks by its score instead
 //!   ([`crate::baseline::Reference`]); it needs no weights.
-//! - The state is the last `history` known items of the request (items outside the model's
+//! - The state is the last `history` known items of the request (items outside the
 //!   catalogue are ignored and counted), padded with "none" as at the start of an episode.
+//! - A learned policy needs only the catalogue (ids to actions, [`CatalogueHandle`]): the
+//!   n-gram model is built only for a reference policy (7 GB at its peak at a million items,
+//!   where the catalogue takes about 100 MB). An embedding snapshot that names another
+//!   catalogue ([`CatalogueTag`]) is refused with the reason, which `Recommend` then gives.
 
 use std::sync::{Arc, Mutex, RwLock};
 
@@ -17,10 +21,15 @@ use jsae_agent::{SwapError, Weights};
 use jsae_envs::recsys::sessions::MAX_ID_BYTES;
 use jsae_envs::recsys::staging::{StagedSessions, StagingArea};
 use jsae_envs::recsys::store::{CommitOutcome, SessionStore};
-use jsae_envs::recsys::{ModelHandle, NgramModel, RecsysError, model_handle};
+use jsae_envs::recsys::{
+    Catalogue, CatalogueHandle, ModelHandle, NgramModel, RecsysError, catalogue_handle,
+    model_handle,
+};
 use jsae_nn::{BurnDevice, DeviceKind};
 use jsae_settings::{EnvName, TrainConfig};
-use jsae_wire::{EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace};
+use jsae_wire::{
+    CatalogueTag, EmbeddingSnapshot, PolicySnapshot, RpcError, StateBatch, StateSpace,
+};
 
 use crate::baseline::PolicyChoice;
 use crate::ranking::best_k;
@@ -51,12 +60,52 @@ pub struct Ranking {
     pub embedding_version: u64,
 }
 
+/// What maps item ids to actions: the n-gram model (a reference policy reads it) or the
+/// catalogue alone (a learned policy).
+enum Items {
+    Model(Arc<ModelHandle>),
+    Catalogue(Arc<CatalogueHandle>),
+}
+
+/// The items in use now, as [`Items`] holds them.
+enum Current {
+    Model(Arc<NgramModel>),
+    Catalogue(Arc<Catalogue>),
+}
+
+impl Current {
+    fn catalogue(&self) -> &Catalogue {
+        match self {
+            Self::Model(m) => m.catalogue(),
+            Self::Catalogue(c) => c,
+        }
+    }
+
+    fn model(&self) -> Option<&NgramModel> {
+        match self {
+            Self::Model(m) => Some(m),
+            Self::Catalogue(_) => None,
+        }
+    }
+}
+
+/// An embedding refused for its catalogue.
+struct Refusal {
+    version: u64,
+    why: String,
+    /// The items the snapshot's catalogue held where ours held fewer: once it holds as many
+    /// (the store's sessions read since), the version may be tried again.
+    items: Option<u64>,
+}
+
 /// The recommender's core, without the transport.
 pub struct Recommender {
     config: TrainConfig,
     policy: PolicyChoice,
-    model: Arc<ModelHandle>,
+    items: Items,
     states: StateSpace,
+    /// The last embedding version refused (None once a newer one is in use).
+    refused: Mutex<Option<Refusal>>,
     /// The weights in use, replaced whole (readers keep the `Arc` they took).
     weights: RwLock<Arc<Weights>>,
     /// The session store's writer, and where calls stage their sessions.
@@ -76,8 +125,9 @@ impl std::fmt::Debug for Recommender {
 }
 
 impl Recommender {
-    /// A recommender serving `policy` for a `recommender` run's settings (the n-gram model's
-    /// data and session store are the settings' `environment.recommender`).
+    /// A recommender serving `policy` for a `recommender` run's settings (the data and the
+    /// session store are the settings' `environment.recommender`; the n-gram model is built
+    /// only for a reference policy, a learned one needs the catalogue alone).
     pub fn new(
         config: &TrainConfig,
         policy: PolicyChoice,
@@ -90,7 +140,10 @@ impl Recommender {
             )));
         }
         let r = &config.environment.recommender;
-        let model = model_handle(r)?;
+        let items = match policy.reference() {
+            Some(_) => Items::Model(model_handle(r)?),
+            None => Items::Catalogue(catalogue_handle(r)?),
+        };
         let (states, actions) = EnvName::Recommender.spaces(&config.environment);
         let store = if r.store_dir.as_os_str().is_empty() {
             None
@@ -103,8 +156,9 @@ impl Recommender {
         Ok(Self {
             config: config.clone(),
             policy,
-            model,
+            items,
             states,
+            refused: Mutex::new(None),
             weights: RwLock::new(Arc::new(weights)),
             store,
         })
@@ -145,9 +199,39 @@ impl Recommender {
         self.policy
     }
 
-    /// The n-gram model in use now.
-    pub fn model(&self) -> Arc<NgramModel> {
-        self.model.current()
+    /// The n-gram model in use now (None for a learned policy: it reads the catalogue alone).
+    pub fn model(&self) -> Option<Arc<NgramModel>> {
+        match &self.items {
+            Items::Model(m) => Some(m.current()),
+            Items::Catalogue(_) => None,
+        }
+    }
+
+    fn current(&self) -> Current {
+        match &self.items {
+            Items::Model(m) => Current::Model(m.current()),
+            Items::Catalogue(c) => Current::Catalogue(c.current()),
+        }
+    }
+
+    /// Why `tag`'s catalogue is not the one served (None: it is). A catalogue that holds
+    /// fewer items than the tag is read again first (the store may have sessions not read yet).
+    fn catalogue_mismatch(&self, tag: &CatalogueTag) -> Option<String> {
+        let check = |c: &Catalogue| {
+            let ours = c.prefix_hash(tag.items as usize);
+            tag.mismatch(c.capacity() as u64, c.len() as u64, ours)
+        };
+        let why = check(self.current().catalogue())?;
+        if self.current().catalogue().len() < tag.items as usize {
+            let refreshed = match &self.items {
+                Items::Model(m) => m.refresh(),
+                Items::Catalogue(c) => c.refresh(),
+            };
+            if refreshed.is_ok() {
+                return check(self.current().catalogue());
+            }
+        }
+        Some(why)
     }
 
     /// The policy version in use (None before the first).
@@ -165,18 +249,54 @@ impl Recommender {
         self.swap(|w| w.set_policy(snapshot))
     }
 
-    /// Swaps in a newer embedding snapshot.
-    pub fn set_embedding(&self, snapshot: &EmbeddingSnapshot) -> Result<(), String> {
+    /// The last embedding version refused for its catalogue, while it stays refused: a
+    /// followed run directory does not read its file again. None once a newer one is in use,
+    /// or once the catalogue holds as many items as the refused one did.
+    pub fn refused_embedding(&self) -> Option<u64> {
+        let refused = self.refused.lock().unwrap_or_else(|p| p.into_inner());
+        let r = refused.as_ref()?;
+        let held = self.current().catalogue().len() as u64;
+        match r.items {
+            Some(items) if held >= items => None,
+            _ => Some(r.version),
+        }
+    }
+
+    /// Swaps in a newer embedding snapshot (given up: its bytes are decoded without a copy).
+    pub fn set_embedding(&self, snapshot: EmbeddingSnapshot) -> Result<(), String> {
         let current = self.weights();
         if snapshot.version <= current.embedding_version() {
             return Ok(());
         }
+        if let (Some(tag), _) = CatalogueTag::split(&snapshot.bytes)
+            && let Some(why) = self.catalogue_mismatch(&tag)
+        {
+            let why = format!("embedding version {} refused: {why}", snapshot.version);
+            tracing::error!("recommender: {why}");
+            let held = self.current().catalogue().len() as u64;
+            *self.refused.lock().unwrap_or_else(|p| p.into_inner()) = Some(Refusal {
+                version: snapshot.version,
+                why: why.clone(),
+                items: (held < tag.items).then_some(tag.items),
+            });
+            return Err(why);
+        }
         // decoded once, outside the swap's retries: f's index is built here (minutes at a
-        // million items), and a policy swapped in meanwhile must not start it again
-        let decoded = current
-            .decode_embedding(snapshot)
-            .map_err(|e| e.to_string())?;
-        self.swap(|w| Ok(w.install_embedding(decoded.clone())))
+        // million items), and a policy swapped in meanwhile must not start it again; while an
+        // embedding is served, by one thread at the lowest priority, so the calls keep a core
+        let version = snapshot.version;
+        let decoded = if current.embedding().is_some() {
+            at_low_priority(|| current.decode_owned_embedding(snapshot, 1))
+        } else {
+            current.decode_owned_embedding(snapshot, 0)
+        }
+        .map_err(|e| e.to_string())?;
+        self.swap(|w| Ok(w.install_embedding(decoded.clone())))?;
+        let mut refused = self.refused.lock().unwrap_or_else(|p| p.into_inner());
+        if refused.as_ref().is_some_and(|r| r.version <= version) {
+            *refused = None;
+        }
+        Ok(())
     }
 
     /// The `k` best items after `history` (item ids, oldest first).
@@ -199,8 +319,8 @@ impl Recommender {
                 "history[{i}] is empty or longer than {MAX_ID_BYTES} bytes"
             )));
         }
-        let model = self.model.current();
-        let catalogue = model.catalogue();
+        let current = self.current();
+        let catalogue = current.catalogue();
         let items = catalogue.len();
         if k == 0 || k as usize > items {
             return Err(bad(format!(
@@ -209,8 +329,8 @@ impl Recommender {
         }
         let known: Vec<u32> = history.iter().filter_map(|h| catalogue.slot(h)).collect();
         let unknown_items = (history.len() - known.len()) as u32;
-        let state = self.state_after(&model, &known);
-        let ranking = self.rank(&model, &state, k as usize)?;
+        let state = self.state_after(catalogue, &known);
+        let ranking = self.ranking(catalogue, current.model(), &state, k as usize)?;
         Ok(Recommendation {
             items: ranking
                 .items
@@ -225,9 +345,9 @@ impl Recommender {
 
     /// The state after purchases of catalogue slots (oldest first): the last `history` of
     /// them, padded with "none" in front as at the start of an episode.
-    pub fn state_after(&self, model: &NgramModel, known: &[u32]) -> Vec<u32> {
+    pub fn state_after(&self, catalogue: &Catalogue, known: &[u32]) -> Vec<u32> {
         let n = self.config.environment.recommender.history as usize;
-        let mut state = vec![model.catalogue().none(); n];
+        let mut state = vec![catalogue.none(); n];
         let tail = &known[known.len().saturating_sub(n)..];
         state[n - tail.len()..].copy_from_slice(tail);
         state
@@ -236,8 +356,22 @@ impl Recommender {
     /// The `k` best catalogue items of `model` in `state` (from [`Self::state_after`]) under
     /// the policy served.
     pub fn rank(&self, model: &NgramModel, state: &[u32], k: usize) -> Result<Ranking, RpcError> {
-        let items = model.catalogue().len();
+        self.ranking(model.catalogue(), Some(model), state, k)
+    }
+
+    /// [`Self::rank`] over `catalogue`; a reference policy reads `model`.
+    fn ranking(
+        &self,
+        catalogue: &Catalogue,
+        model: Option<&NgramModel>,
+        state: &[u32],
+        k: usize,
+    ) -> Result<Ranking, RpcError> {
+        let items = catalogue.len();
         if let Some(reference) = self.policy.reference() {
+            let model = model.ok_or_else(|| {
+                RpcError::Internal("a reference policy without the n-gram model".into())
+            })?;
             return Ok(Ranking {
                 items: reference
                     .rank(model, state, k)
@@ -264,9 +398,11 @@ impl Recommender {
                 weights.embedding(),
                 weights.embedding().and_then(|e| e.nearest()),
             ) else {
-                return Err(RpcError::Unavailable(
-                    "no embedding yet: waiting for the embedder's first snapshot".into(),
-                ));
+                let refused = self.refused.lock().unwrap_or_else(|p| p.into_inner());
+                return Err(RpcError::Unavailable(match refused.as_ref() {
+                    Some(r) => format!("no embedding: {}", r.why),
+                    None => "no embedding yet: waiting for the embedder's first snapshot".into(),
+                }));
             };
             embedding.embed_states(&batch, &mut x);
             let e = policy.head_outputs(&x, weights.prior());
@@ -316,6 +452,34 @@ impl Recommender {
     }
 }
 
+/// The tag of `catalogue` as a recommender embedding's snapshot carries it.
+pub fn catalogue_tag(catalogue: &Catalogue) -> CatalogueTag {
+    CatalogueTag {
+        items: catalogue.len() as u64,
+        capacity: catalogue.capacity() as u64,
+        prefix_hash: catalogue.prefix_hash(catalogue.len()).unwrap_or_default(),
+    }
+}
+
+/// Runs `work` on a thread of the lowest CPU priority (nice 19; the threads it starts, such as
+/// the index build's, inherit it) and waits for it.
+fn at_low_priority<T: Send>(work: impl FnOnce() -> T + Send) -> T {
+    // rayon's pool, if the work starts it, would keep the priority for good
+    let _ = rayon::current_num_threads();
+    std::thread::scope(|s| {
+        s.spawn(|| {
+            #[cfg(target_os = "linux")]
+            if let Err(e) = rustix::process::setpriority_process(Some(rustix::thread::gettid()), 19)
+            {
+                tracing::debug!("recommender: no lower priority for the decode: {e}");
+            }
+            work()
+        })
+        .join()
+        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })
+}
+
 /// The `k` most likely of the first `items` actions under `logits`, as `(action, p)`.
 fn most_likely(logits: &[f32], items: usize, k: usize) -> Vec<(u32, f32)> {
     let max = logits.iter().copied().fold(f32::NEG_INFINITY, f32::max);
@@ -331,14 +495,5 @@ fn most_likely(logits: &[f32], items: usize, k: usize) -> Vec<(u32, f32)> {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn most_likely_is_the_softmax_of_the_filled_slots() {
-        let got = most_likely(&[0.0, (2.0f32).ln(), 10.0], 2, 2);
-        assert_eq!(got[0].0, 1);
-        assert_eq!(got[1].0, 0);
-        assert!((got[0].1 / got[1].1 - 2.0).abs() < 1e-5);
-    }
-}
+#[path = "scoring_tests.rs"]
+mod tests;

@@ -39,16 +39,21 @@ pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
         let (version, path) = ckpt.newest(Weights::Embedding).ok_or_else(|| {
             anyhow::anyhow!("{}: no embedding checkpoint yet", ckpt.path().display())
         })?;
-        if version > rec.embedding_version() {
-            rec.set_embedding(&EmbeddingSnapshot {
+        if version > rec.embedding_version() && rec.refused_embedding() != Some(version) {
+            let set = rec.set_embedding(EmbeddingSnapshot {
                 version,
                 bytes: read(&path)?,
                 model_loss: 0.0,
                 decoder_loss: 0.0,
                 action_structure: None,
-            })
-            .map_err(anyhow::Error::msg)?;
-            changed = true;
+            });
+            match set {
+                Ok(()) => changed = true,
+                // another catalogue's: said once (an error) and not read again; the policy
+                // still loads
+                Err(_) if rec.refused_embedding() == Some(version) => {}
+                Err(e) => return Err(anyhow::Error::msg(e)),
+            }
         }
     }
     let (version, path) = ckpt
@@ -132,7 +137,7 @@ pub fn follow(
                 // blocking thread, so the runtime's workers go on answering meanwhile
                 let rec = rec.clone();
                 async move {
-                    match tokio::task::spawn_blocking(move || rec.set_embedding(&s)).await {
+                    match tokio::task::spawn_blocking(move || rec.set_embedding(s)).await {
                         Ok(Ok(())) => {}
                         Ok(Err(e)) => tracing::warn!("recommender: {e}"),
                         Err(e) => tracing::error!("recommender: decoding an embedding: {e}"),

@@ -10,6 +10,7 @@ use jsae_envs::Env;
 use jsae_envs::recsys::RecommenderEnv;
 use jsae_learner::LoggedPurchases;
 use jsae_settings::{EnvName, TrainConfig};
+use jsae_wire::CatalogueTag;
 
 /// The run's logged purchases where its settings ask for them; None where they do not.
 ///
@@ -38,8 +39,18 @@ pub fn logged_items(config: &TrainConfig) -> Result<Option<LoggedItems>, String>
     {
         return Ok(None);
     }
-    let (_, states, items) = read(config)?;
-    Ok(Some(LoggedItems { states, items }))
+    let (env, states, items) = read(config)?;
+    let model = env.model();
+    let catalogue = model.catalogue();
+    Ok(Some(LoggedItems {
+        states,
+        items,
+        catalogue: Some(CatalogueTag {
+            items: catalogue.len() as u64,
+            capacity: catalogue.capacity() as u64,
+            prefix_hash: catalogue.prefix_hash(catalogue.len()).unwrap_or_default(),
+        }),
+    }))
 }
 
 fn read(config: &TrainConfig) -> Result<(RecommenderEnv, jsae_wire::StateBatch, Vec<u32>), String> {

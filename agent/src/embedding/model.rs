@@ -14,11 +14,13 @@ use burn::module::{Module, Param};
 use burn::nn::Linear;
 use burn::tensor::{Device, Int, Tensor, TensorData};
 use jsae_wire::{ActionBatch, ActionSpace, StateBatch, StateSpace};
-use rand::Rng;
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use jsae_nn::{self as nn, Mlp, MlpConfig, ObsNorm};
 use jsae_settings::{EmbeddingConfig, Representation};
+
+use super::init::{Tables, action_parts, uniform_linear, uniform_table};
 
 /// The trainable parts. Exactly one of each `*_table` / `*_linear` pair is present.
 #[derive(Module, Debug)]
@@ -69,69 +71,6 @@ pub struct EmbeddingModel {
     device: Device,
 }
 
-fn uniform_table(
-    rows: usize,
-    cols: usize,
-    rng: &mut ChaCha8Rng,
-    device: &Device,
-) -> Param<Tensor<2>> {
-    // a linear layer on one-hots of width `rows`: U(-1/sqrt(rows), 1/sqrt(rows))
-    let k = 1.0 / (rows as f32).sqrt();
-    let values: Vec<f32> = (0..rows * cols).map(|_| rng.random_range(-k..k)).collect();
-    Param::from_tensor(nn::tensor2(values, rows, cols, device))
-}
-
-/// A linear layer as burn's default initialises one: `U(-1/sqrt(d_in), 1/sqrt(d_in))` weights
-/// (and bias).
-pub fn uniform_linear(
-    d_in: usize,
-    d_out: usize,
-    bias: bool,
-    rng: &mut ChaCha8Rng,
-    device: &Device,
-) -> Linear {
-    let k = 1.0 / (d_in as f32).sqrt();
-    let w: Vec<f32> = (0..d_in * d_out).map(|_| rng.random_range(-k..k)).collect();
-    let b = bias.then(|| (0..d_out).map(|_| rng.random_range(-k..k)).collect());
-    nn::linear_from_host(w, b, d_in, d_out, device)
-}
-
-/// g and f: the g-table (discrete actions), or g's linear layer (not RA's, which has no
-/// action encoder: its embeddings come from the inverse model) and the decoder MLP.
-type ActionParts = (Option<Param<Tensor<2>>>, Option<Linear>, Option<Mlp>);
-
-fn action_parts(
-    config: &EmbeddingConfig,
-    representation: Representation,
-    actions: &ActionSpace,
-    rng: &mut ChaCha8Rng,
-    device: &Device,
-) -> ActionParts {
-    let d = config.action_dim;
-    let ra = representation == Representation::ActionRepresentation;
-    match actions {
-        ActionSpace::Discrete { n } => (Some(uniform_table(*n, d, rng, device)), None, None),
-        ActionSpace::Continuous { dim, .. } => {
-            // RA has no action encoder: its embeddings come from the inverse model.
-            let g = (!ra).then(|| uniform_linear(*dim, d, false, rng, device));
-            let hidden = match representation {
-                Representation::AutoEncoder => vec![],
-                _ => vec![config.decoder_hidden],
-            };
-            let decoder = MlpConfig {
-                input: d,
-                hidden,
-                output: *dim,
-                output_gain: 1.0,
-                skip: false,
-                zero_inputs: 0,
-                skip_identity: None,
-            };
-            (None, g, Some(decoder.init(rng, device)))
-        }
-    }
-}
-
 /// Where each factor's one-hot columns start in phi's table (categorical states).
 fn factor_offsets(states: &StateSpace) -> Vec<u32> {
     match states {
@@ -159,16 +98,57 @@ impl EmbeddingModel {
         rng: &mut ChaCha8Rng,
         device: &Device,
     ) -> Self {
+        Self::build(
+            config,
+            representation,
+            states,
+            actions,
+            Tables::Drawn,
+            rng,
+            device,
+        )
+    }
+
+    /// The model's structure with zero tables, for snapshot bytes to replace
+    /// ([`Self::load_owned_bytes`]): the tables' memory is taken only by the loaded ones.
+    pub fn template(
+        config: &EmbeddingConfig,
+        representation: Representation,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        device: &Device,
+    ) -> Self {
+        let mut rng = ChaCha8Rng::seed_from_u64(0);
+        Self::build(
+            config,
+            representation,
+            states,
+            actions,
+            Tables::Zeros,
+            &mut rng,
+            device,
+        )
+    }
+
+    fn build(
+        config: &EmbeddingConfig,
+        representation: Representation,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        tables: Tables,
+        rng: &mut ChaCha8Rng,
+        device: &Device,
+    ) -> Self {
         let (m, d) = (config.state_dim, config.action_dim);
         let (phi_table, phi_linear) = match states {
             StateSpace::Categorical { sizes } => (
-                Some(uniform_table(sizes.iter().sum(), m, rng, device)),
+                Some(uniform_table(sizes.iter().sum(), m, tables, rng, device)),
                 None,
             ),
             StateSpace::Real { dim } => (None, Some(uniform_linear(*dim, m, false, rng, device))),
         };
         let (g_table, g_linear, decoder) =
-            action_parts(config, representation, actions, rng, device);
+            action_parts(config, representation, actions, tables, rng, device);
         let mut net = EmbeddingNet {
             phi_table,
             phi_pair: None,
@@ -307,9 +287,19 @@ impl EmbeddingModel {
         nn::into_bytes(&self.net)
     }
 
-    /// Loads weights from snapshot bytes (structure checked).
+    /// Loads weights from snapshot bytes (structure checked; a catalogue tag after them,
+    /// [`jsae_wire::CatalogueTag`], is the reader's to check and is passed over here).
     pub fn load_bytes(&mut self, bytes: &[u8]) -> Result<(), nn::RecordError> {
+        let (_, bytes) = jsae_wire::CatalogueTag::split(bytes);
         self.net = nn::from_bytes(self.net.clone(), bytes)?;
+        Ok(())
+    }
+
+    /// [`Self::load_bytes`] from bytes the caller gives up (no copy of them is made).
+    pub fn load_owned_bytes(&mut self, mut bytes: Vec<u8>) -> Result<(), nn::RecordError> {
+        let model = jsae_wire::CatalogueTag::split(&bytes).1.len();
+        bytes.truncate(model);
+        self.net = nn::from_owned_bytes(self.net.clone(), bytes)?;
         Ok(())
     }
 

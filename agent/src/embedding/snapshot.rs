@@ -4,8 +4,6 @@
 use burn::tensor::Device;
 use jsae_settings::{EmbeddingConfig, Representation};
 use jsae_wire::{ActionBatch, ActionSpace, EmbeddingSnapshot, StateBatch, StateSpace};
-use rand::SeedableRng;
-use rand_chacha::ChaCha8Rng;
 
 use super::EmbeddingModel;
 use jsae_action_index::{ActionIndex, ApproxSettings};
@@ -29,10 +27,34 @@ impl Embedding {
         snapshot: &EmbeddingSnapshot,
         device: &Device,
     ) -> Result<Self, RecordError> {
-        let mut rng = ChaCha8Rng::seed_from_u64(0);
-        let mut model =
-            EmbeddingModel::new(config, representation, states, actions, &mut rng, device);
+        let mut model = EmbeddingModel::template(config, representation, states, actions, device);
         model.load_bytes(&snapshot.bytes)?;
+        Self::indexed(model, config, snapshot.version, 0)
+    }
+
+    /// [`Self::from_snapshot`] from a snapshot the caller gives up: its bytes are read without
+    /// a copy and dropped before f's index is built (at a million items each copy is 768 MB);
+    /// an approximate index is built by `index_threads` threads (0: every core).
+    pub fn from_owned_snapshot(
+        config: &EmbeddingConfig,
+        representation: Representation,
+        states: &StateSpace,
+        actions: &ActionSpace,
+        (snapshot, index_threads): (EmbeddingSnapshot, usize),
+        device: &Device,
+    ) -> Result<Self, RecordError> {
+        let mut model = EmbeddingModel::template(config, representation, states, actions, device);
+        model.load_owned_bytes(snapshot.bytes)?;
+        Self::indexed(model, config, snapshot.version, index_threads)
+    }
+
+    /// The loaded `model` with f's index over its action table.
+    fn indexed(
+        model: EmbeddingModel,
+        config: &EmbeddingConfig,
+        version: u64,
+        threads: usize,
+    ) -> Result<Self, RecordError> {
         let nearest = model
             .action_table()
             .map(|t| {
@@ -40,7 +62,10 @@ impl Embedding {
                     &nn::to_vec(t),
                     config.action_dim,
                     config.approx_nearest_from,
-                    &ApproxSettings::default(),
+                    &ApproxSettings {
+                        threads,
+                        ..ApproxSettings::default()
+                    },
                 )
             })
             .transpose()
@@ -48,7 +73,7 @@ impl Embedding {
         Ok(Self {
             model,
             nearest,
-            version: snapshot.version,
+            version,
         })
     }
 

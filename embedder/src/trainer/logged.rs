@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use jsae_wire::StateBatch;
+use jsae_wire::{CatalogueTag, StateBatch};
 use rand::seq::SliceRandom;
 
 use super::EmbedderTrainer;
@@ -21,6 +21,9 @@ pub struct LoggedItems {
     pub states: StateBatch,
     /// The item bought after each.
     pub items: Vec<u32>,
+    /// The catalogue the items' slots are of: the snapshots carry it, so a process serving
+    /// other items refuses them (None: not said).
+    pub catalogue: Option<CatalogueTag>,
 }
 
 impl LoggedItems {
@@ -205,6 +208,7 @@ mod tests {
         LoggedItems {
             states: StateBatch::Categorical { factors: 2, data },
             items,
+            catalogue: None,
         }
     }
 
@@ -326,6 +330,7 @@ mod tests {
                 data: vec![ITEMS + 1, 0],
             },
             items: vec![0],
+            catalogue: None,
         };
         assert!(
             t.set_logged(Arc::new(wide)).is_err(),

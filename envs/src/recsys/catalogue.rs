@@ -4,7 +4,7 @@ use std::collections::HashMap;
 
 use serde::{Deserialize, Serialize};
 
-use super::sessions::Session;
+use super::sessions::{Session, bytes_hash};
 
 /// The items that are actions: slot `k` is action `k`; slot `capacity` stands for "none"
 /// in a state (history shorter than the state). Slots past `len()` are free: new items take
@@ -80,6 +80,38 @@ impl Catalogue {
                     self.index.insert(p.item_id.clone(), self.ids.len() as u32);
                     self.ids.push(p.item_id.clone());
                 }
+            }
+        }
+        self.ids.len() - before
+    }
+
+    /// A hash of the capacity and the ids of slots `0..n` in slot order (None when fewer
+    /// than `n` are held): two catalogues that agree on it map those items to the same
+    /// actions. Stable across machines and versions ([`bytes_hash`]).
+    pub fn prefix_hash(&self, n: usize) -> Option<u64> {
+        let ids = self.ids.get(..n)?;
+        let mut h = bytes_hash(&(self.capacity as u64).to_le_bytes());
+        let mut buf = Vec::new();
+        for id in ids {
+            buf.clear();
+            buf.extend_from_slice(&h.to_le_bytes());
+            buf.extend_from_slice(id.as_bytes());
+            h = bytes_hash(&buf);
+        }
+        Some(h)
+    }
+
+    /// Gives free slots to `ids` (new to the catalogue, distinct) in this order, as far as
+    /// free slots go; returns how many were added.
+    pub fn add(&mut self, ids: Vec<String>) -> usize {
+        let before = self.ids.len();
+        for id in ids {
+            if self.ids.len() >= self.capacity {
+                break;
+            }
+            if !self.index.contains_key(&id) {
+                self.index.insert(id.clone(), self.ids.len() as u32);
+                self.ids.push(id);
             }
         }
         self.ids.len() - before

@@ -69,6 +69,28 @@ pub fn is_held_out(session_id: &str, share: f64) -> bool {
     (id_hash(session_id) as f64) < share * (u64::MAX as f64)
 }
 
+/// Visits the sessions of the configured source that are not held out, one at a time: the
+/// generated catalogue is made session by session and never held whole (20 million purchases
+/// at a million items); the files are read whole first.
+pub fn for_each_training_session(
+    config: &RecommenderConfig,
+    mut visit: impl FnMut(&Session),
+) -> Result<(), RecsysError> {
+    let mut keep = |s: &Session| {
+        if !is_held_out(&s.session_id, config.holdout) {
+            visit(s);
+        }
+    };
+    if config.source == SessionSource::Catalogue {
+        let catalogue = LargeCatalogue::new(&config.catalogue)
+            .map_err(|e| RecsysError::Data(format!("recommender.catalogue.{e}")))?;
+        (0..catalogue.sessions()).for_each(|s| keep(&catalogue.session_record(s)));
+    } else {
+        load_sessions(config)?.iter().for_each(keep);
+    }
+    Ok(())
+}
+
 /// The data's sessions split into (training, held out) by [`is_held_out`] with the settings'
 /// `holdout`.
 pub fn split_sessions(

@@ -3,11 +3,13 @@
 //! `large_catalogue`), the session store that `SubmitSessions` commits to
 //! (`store`, with each call's `staging`), the n-gram MDP built from them (Shani et al.:
 //! `ngram_counts` made into `ngram`, kept current by `model_handle`, the store's part
-//! checkpointed by `model_checkpoint`), and the environment over it. The gRPC Recommender service is the `jsae-recommender` crate.
+//! checkpointed by `model_checkpoint`; the catalogue alone by `catalogue_handle`), and the
+//! environment over it. The gRPC Recommender service is the `jsae-recommender` crate.
 
 use std::path::PathBuf;
 
 mod catalogue;
+pub mod catalogue_handle;
 pub mod data;
 pub mod env;
 pub mod instacart;
@@ -24,6 +26,7 @@ pub mod store;
 mod stored_ids;
 pub mod synthetic;
 
+pub use catalogue_handle::{CatalogueHandle, catalogue_handle};
 pub use data::{held_out_sessions, is_held_out};
 pub use env::RecommenderEnv;
 pub use model_handle::{ModelHandle, model_handle};

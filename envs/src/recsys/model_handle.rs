@@ -80,7 +80,7 @@ impl std::fmt::Debug for ModelHandle {
     }
 }
 
-fn store_dir(config: &RecommenderConfig) -> Option<&Path> {
+pub(super) fn store_dir(config: &RecommenderConfig) -> Option<&Path> {
     (!config.store_dir.as_os_str().is_empty()).then_some(config.store_dir.as_path())
 }
 
@@ -128,15 +128,12 @@ fn pinned_catalogue(
     Ok(catalogue)
 }
 
-/// The `capacity` most purchased items of the data and the store's sessions (read one at a
-/// time), for a store's first catalogue.
-fn most_purchased_with_store(
-    base: &[Session],
-    dir: &Path,
-    capacity: usize,
-) -> Result<Catalogue, RecsysError> {
+/// The items purchased in the sessions `visit` passes on, and how often.
+fn purchase_counts(
+    visit: impl FnOnce(&mut dyn FnMut(&Session)) -> Result<(), RecsysError>,
+) -> Result<HashMap<String, u64>, RecsysError> {
     let mut counts: HashMap<String, u64> = HashMap::new();
-    let mut count = |s: &Session| {
+    visit(&mut |s: &Session| {
         for p in &s.purchases {
             match counts.get_mut(p.item_id.as_str()) {
                 Some(c) => *c += 1,
@@ -145,10 +142,31 @@ fn most_purchased_with_store(
                 }
             }
         }
-    };
-    base.iter().for_each(&mut count);
-    store::read_committed(dir, 0, u64::MAX, |s, _| count(&s))?;
-    Ok(Catalogue::top(counts, capacity))
+    })?;
+    Ok(counts)
+}
+
+/// The catalogue the settings start from, before the store's sessions extend it: with a
+/// store, its pinned `catalogue.json` (made the first time from the `top_n` most purchased
+/// items of the data and the store's sessions); without, the data's `top_n` most purchased
+/// items. `base` visits the data's sessions that are not held out. [`ModelHandle`] and
+/// [`CatalogueHandle`](super::catalogue_handle::CatalogueHandle) both start here, so a
+/// process that holds only the catalogue maps items to the same actions.
+pub(super) fn first_catalogue(
+    config: &RecommenderConfig,
+    base: impl FnOnce(&mut dyn FnMut(&Session)) -> Result<(), RecsysError>,
+) -> Result<Catalogue, RecsysError> {
+    let capacity = config.top_n as usize;
+    match store_dir(config) {
+        Some(dir) => pinned_catalogue(dir, capacity, || {
+            let counts = purchase_counts(|visit| {
+                base(&mut *visit)?;
+                store::read_committed(dir, 0, u64::MAX, |s, _| visit(&s)).map(|_| ())
+            })?;
+            Ok(Catalogue::top(counts, capacity))
+        }),
+        None => Ok(Catalogue::top(purchase_counts(base)?, capacity)),
+    }
 }
 
 /// The counts of `sessions` over `catalogue`.
@@ -166,12 +184,10 @@ impl ModelHandle {
         let (base, held_out) = split_sessions(load_sessions(config)?, config);
         let capacity = config.top_n as usize;
         let mut refresh = Refresh {
-            catalogue: match store_dir(config) {
-                Some(dir) => pinned_catalogue(dir, capacity, || {
-                    most_purchased_with_store(&base, dir, capacity)
-                })?,
-                None => Catalogue::most_purchased(base.iter(), capacity),
-            },
+            catalogue: first_catalogue(config, |visit| {
+                base.iter().for_each(visit);
+                Ok(())
+            })?,
             base_counts: NgramCounts::new(capacity),
             stored: NgramCounts::new(capacity),
             offset: 0,
@@ -328,24 +344,34 @@ pub fn model_handle(config: &RecommenderConfig) -> Result<Arc<ModelHandle>, Recs
     let handle = Arc::new(ModelHandle::load(config)?);
     cache.insert(key, Arc::downgrade(&handle));
     if store_dir(config).is_some() {
-        let weak = Arc::downgrade(&handle);
-        let every = Duration::from_secs(config.refresh_seconds);
-        let spawned = std::thread::Builder::new()
-            .name("recsys-refresh".into())
-            .spawn(move || {
-                loop {
-                    std::thread::sleep(every);
-                    let Some(handle) = weak.upgrade() else { return };
-                    if let Err(e) = handle.refresh() {
-                        tracing::warn!("recommender: refreshing from the store: {e}");
-                    }
-                }
-            });
-        if let Err(e) = spawned {
-            tracing::warn!("recommender: no refresh thread: {e}");
-        }
+        refresh_every(&handle, config, ModelHandle::refresh);
     }
     Ok(handle)
+}
+
+/// Starts a thread that calls `refresh` on `handle` every `refresh_seconds` while anything
+/// else holds it (a failure is logged and tried again next time).
+pub(super) fn refresh_every<T: Send + Sync + 'static>(
+    handle: &Arc<T>,
+    config: &RecommenderConfig,
+    refresh: fn(&T) -> Result<usize, RecsysError>,
+) {
+    let weak = Arc::downgrade(handle);
+    let every = Duration::from_secs(config.refresh_seconds);
+    let spawned = std::thread::Builder::new()
+        .name("recsys-refresh".into())
+        .spawn(move || {
+            loop {
+                std::thread::sleep(every);
+                let Some(handle) = weak.upgrade() else { return };
+                if let Err(e) = refresh(&handle) {
+                    tracing::warn!("recommender: refreshing from the store: {e}");
+                }
+            }
+        });
+    if let Err(e) = spawned {
+        tracing::warn!("recommender: no refresh thread: {e}");
+    }
 }
 
 #[cfg(test)]

@@ -195,3 +195,39 @@ fn a_restart_counts_the_store_from_its_checkpoint_as_a_build_from_every_session_
     assert_eq!(whole.current().sessions() + 1, again.current().sessions());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn the_catalogue_alone_follows_the_store_as_the_model_does() {
+    use crate::recsys::CatalogueHandle;
+    let (dir, config) = synthetic_store("catalogue-alone", 30, 400);
+    let alone = CatalogueHandle::load(&config).expect("the catalogue");
+    let model = ModelHandle::load(&config).expect("the model");
+    assert_eq!(&*alone.current(), model.current().catalogue());
+    let a = alone.current().id(0).expect("filled").to_owned();
+    let mut store = SessionStore::open(&dir).expect("store");
+    store
+        .append(&[
+            session("n1", &[&a, "new-1", "new-2"]),
+            session("n2", &["new-2", "new-3", &a]),
+        ])
+        .expect("appends");
+    assert_eq!(alone.refresh().expect("reads the store"), 2);
+    assert_eq!(alone.refresh().expect("nothing new"), 0);
+    model.refresh().expect("refreshes");
+    assert_eq!(&*alone.current(), model.current().catalogue());
+    assert_eq!(alone.current().slot("new-3"), Some(27));
+    // a restart reads the pinned catalogue and the store again: the same slots
+    drop(store);
+    let again = CatalogueHandle::load(&config).expect("reloads");
+    assert_eq!(&*again.current(), &*alone.current());
+    // more new items than free slots: the first ones take the slots left
+    let mut store = SessionStore::open(&dir).expect("store");
+    let many: Vec<String> = (0..10).map(|i| format!("more-{i}")).collect();
+    let refs: Vec<&str> = many.iter().map(String::as_str).collect();
+    store.append(&[session("n3", &refs)]).expect("appends");
+    alone.refresh().expect("reads the store");
+    model.refresh().expect("refreshes");
+    assert_eq!(alone.current().len(), 30);
+    assert_eq!(&*alone.current(), model.current().catalogue());
+    let _ = std::fs::remove_dir_all(&dir);
+}
