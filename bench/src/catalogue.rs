@@ -95,9 +95,11 @@ pub struct CatalogueRow {
     pub swap_rss_mib: f64,
     /// Whether it refused an embedding of another catalogue and kept the one in use.
     pub refused_other_catalogue: bool,
-    /// JSAE training's environment steps per second at this size (None: not measured by
-    /// this bench; `docs/src/recommender/catalogue-scale.md` has the runs).
-    pub train_env_steps_per_s: Option<f64>,
+    /// JSAE's environment steps a second in training at this size, on the acting side: one
+    /// actor's environments stepped by one thread, each step phi, the policy and f through
+    /// the index (`catalogue_acting`; `docs/src/recommender/catalogue-scale.md` has whole
+    /// runs).
+    pub train_env_steps_per_s: f64,
     /// PPO with a categorical head over every item (64-wide input, the default hidden
     /// layers, fused update): milliseconds per update of 2,048 samples.
     pub ppo_categorical_update_ms: f64,
@@ -215,6 +217,9 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
     drop((approx, exact, table));
     let (ppo_categorical_update_ms, ppo_categorical_mib) = ppo_categorical(n);
     let embedder = crate::catalogue_embedder::embedder_steps(&catalogue);
+    // last: the n-gram model the environments need stays in this process's memory
+    let train_env_steps_per_s =
+        crate::catalogue_acting::env_steps_per_s(items, if quick { 1.0 } else { 10.0 })?;
     let recall_at_10 = got
         .iter()
         .zip(&wanted)
@@ -252,7 +257,7 @@ pub fn measure(items: u32, quick: bool) -> anyhow::Result<CatalogueRow> {
         swap_p99_ms: serving.swap_p99_ms,
         swap_rss_mib: serving.swap_rss_mib,
         refused_other_catalogue: serving.refused_other_catalogue,
-        train_env_steps_per_s: None,
+        train_env_steps_per_s,
         ppo_categorical_update_ms,
         ppo_categorical_mib,
         embedder_step_ms: embedder.step_ms,
@@ -326,7 +331,7 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
                 row.embedder_mib
             );
             println!(
-                "{:>9} jsae recommender: first answer after {:.1} s; {:.0} requests/s offered, {} of {} answered, p50 {:.3} ms, p99 {:.3} ms, peak RSS {:.0} MiB ({:.0} MiB serving); a new embedding answered after {:.1} s under the load, p50 {:.3} ms, p99 {:.3} ms meanwhile, peak RSS {:.0} MiB; another catalogue's embedding refused: {}",
+                "{:>9} jsae recommender: first answer after {:.1} s; {:.0} requests/s offered, {} of {} answered, p50 {:.3} ms, p99 {:.3} ms, peak RSS {:.0} MiB ({:.0} MiB serving); a new embedding answered after {:.1} s under the load, p50 {:.3} ms, p99 {:.3} ms meanwhile, peak RSS {:.0} MiB; another catalogue's embedding refused: {}; JSAE's acting: {:.0} env steps/s",
                 "",
                 row.recommender_load_s,
                 row.offered_rps,
@@ -340,7 +345,8 @@ pub fn run(items: &[u32], json: bool, quick: bool) -> anyhow::Result<()> {
                 row.swap_p50_ms,
                 row.swap_p99_ms,
                 row.swap_rss_mib,
-                row.refused_other_catalogue
+                row.refused_other_catalogue,
+                row.train_env_steps_per_s
             );
         }
     }

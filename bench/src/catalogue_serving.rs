@@ -71,7 +71,7 @@ pub struct Serving {
 }
 
 /// The recommender JSAE's settings over the generated catalogue of `items` items.
-fn settings(items: u32) -> anyhow::Result<TrainConfig> {
+pub(crate) fn settings(items: u32) -> anyhow::Result<TrainConfig> {
     let mut config = TrainConfig::defaults(EnvName::Recommender, Algo::Jsae);
     let r = &mut config.environment.recommender;
     r.source = SessionSource::Catalogue;
@@ -90,7 +90,7 @@ fn settings(items: u32) -> anyhow::Result<TrainConfig> {
 
 /// An embedding snapshot's bytes: phi drawn from `seed`, g the category stand-in of each
 /// slot's item (free slots: the stand-in of the item with the slot's number), tagged.
-fn embedding_bytes(
+pub(crate) fn embedding_bytes(
     config: &TrainConfig,
     generated: &LargeCatalogue,
     catalogue: &Catalogue,
@@ -124,6 +124,20 @@ fn embedding_bytes(
     let mut bytes = model.to_bytes()?;
     tag.append_to(&mut bytes);
     Ok(bytes)
+}
+
+/// A policy snapshot's bytes: the run's policy, freshly drawn.
+pub(crate) fn policy_bytes(config: &TrainConfig) -> anyhow::Result<Vec<u8>> {
+    let (states, actions) = EnvName::Recommender.spaces(&config.environment);
+    let (input, head) = policy_shape(config, &states, &actions);
+    let policy = Policy::new(
+        &config.ppo,
+        input,
+        head,
+        &mut ChaCha8Rng::seed_from_u64(1),
+        &DeviceKind::Flex.device(),
+    );
+    Ok(PolicyPrior::new(&config.ppo).encode(&policy)?)
 }
 
 /// The peak (`VmHWM`) resident memory of process `pid`, MiB.
@@ -246,17 +260,7 @@ fn measure_in(root: &Path, items: u32, seconds: f64) -> anyhow::Result<Serving> 
         Ok(())
     };
     write_embedding(1, tag)?;
-    let (states, actions) = EnvName::Recommender.spaces(&config.environment);
-    let (input, head) = policy_shape(&config, &states, &actions);
-    let policy = Policy::new(
-        &config.ppo,
-        input,
-        head,
-        &mut ChaCha8Rng::seed_from_u64(1),
-        &DeviceKind::Flex.device(),
-    );
-    let policy = PolicyPrior::new(&config.ppo).encode(&policy)?;
-    checkpoints.write_versioned(Weights::Policy, 1, &policy)?;
+    checkpoints.write_versioned(Weights::Policy, 1, &policy_bytes(&config)?)?;
     let histories = Arc::new(histories(&generated));
     let probe = histories[0].clone();
 

@@ -5,6 +5,7 @@
 //! end-to-end actor scaling (`scaling`) benchmarks are the submodules.
 
 pub mod catalogue;
+pub mod catalogue_acting;
 pub mod catalogue_embedder;
 pub mod catalogue_serving;
 pub mod learner;

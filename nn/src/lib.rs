@@ -6,7 +6,8 @@
 //! is a burn module built from these. The crate also sets the process's heap allocator
 //! (`allocator`: mimalloc), as every binary links it.
 
-// `unsafe` is denied everywhere but in `host::dense`, the one call into a raw-pointer kernel
+// `unsafe` is denied everywhere but in `host::dense`, the one call into a raw-pointer kernel,
+// and in `allocator::release_freed`, a call into mimalloc that takes no pointers
 #![deny(unsafe_code)]
 
 mod allocator;
@@ -19,6 +20,7 @@ mod io;
 mod mlp;
 mod obs_norm;
 
+pub use allocator::release_freed;
 pub use clip::clip_global_grad_norm;
 pub use device::{BurnDevice, DeviceKind};
 pub use finite::non_finite_values;

@@ -6,8 +6,7 @@
 //! `jsae embedder`, `jsae train --one-process`) pass these in.
 
 use jsae_embedder::LoggedItems;
-use jsae_envs::Env;
-use jsae_envs::recsys::RecommenderEnv;
+use jsae_envs::recsys::{Catalogue, CatalogueHandle};
 use jsae_learner::LoggedPurchases;
 use jsae_settings::{EnvName, TrainConfig};
 use jsae_wire::CatalogueTag;
@@ -20,10 +19,10 @@ pub fn logged_purchases(config: &TrainConfig) -> Result<Option<LoggedPurchases>,
     if !config.ppo.wants_logs() || config.env != EnvName::Recommender {
         return Ok(None);
     }
-    let (env, states, next) = read(config)?;
+    let (_, states, next) = read(config)?;
     Ok(Some(LoggedPurchases {
         states,
-        space: env.state_space().clone(),
+        space: config.spaces().0,
         next,
     }))
 }
@@ -39,9 +38,7 @@ pub fn logged_items(config: &TrainConfig) -> Result<Option<LoggedItems>, String>
     {
         return Ok(None);
     }
-    let (env, states, items) = read(config)?;
-    let model = env.model();
-    let catalogue = model.catalogue();
+    let (catalogue, states, items) = read(config)?;
     Ok(Some(LoggedItems {
         states,
         items,
@@ -53,9 +50,14 @@ pub fn logged_items(config: &TrainConfig) -> Result<Option<LoggedItems>, String>
     }))
 }
 
-fn read(config: &TrainConfig) -> Result<(RecommenderEnv, jsae_wire::StateBatch, Vec<u32>), String> {
-    let env = RecommenderEnv::new(&config.environment)
-        .map_err(|e| format!("reading the logged purchases: {e}"))?;
-    let (states, next) = env.logged_steps();
-    Ok((env, states, next))
+/// The catalogue and its logged steps, read without the n-gram model (7 GB at its peak at a
+/// million items; neither the learner nor the embedder steps the environment).
+fn read(
+    config: &TrainConfig,
+) -> Result<(std::sync::Arc<Catalogue>, jsae_wire::StateBatch, Vec<u32>), String> {
+    let r = &config.environment.recommender;
+    let why = |e: jsae_envs::recsys::RecsysError| format!("reading the logged purchases: {e}");
+    let handle = CatalogueHandle::load(r).map_err(why)?;
+    let (states, next) = handle.logged_steps(r.history as usize).map_err(why)?;
+    Ok((handle.current(), states, next))
 }

@@ -32,8 +32,13 @@ pub const MAX_MESSAGE_BYTES: usize = 16 * 1024 * 1024;
 /// beside the shared snapshot.
 pub const SNAPSHOT_CHUNK: usize = 256 * 1024;
 
-/// Largest snapshot a receiver reassembles (256 MiB).
-pub const MAX_SNAPSHOT_BYTES: u64 = 256 * 1024 * 1024;
+/// Largest snapshot a receiver reassembles (2 GiB): a recommender embedding of a million
+/// items is 801 MB (phi's and g's tables), of two million 1.6 GB.
+pub const MAX_SNAPSHOT_BYTES: u64 = 2 * 1024 * 1024 * 1024;
+
+/// What a receiver reserves for a snapshot before its bytes arrive (64 MiB): beyond that the
+/// buffer grows as they come, so a sender's claimed length alone takes no memory.
+const SNAPSHOT_RESERVE: u64 = 64 * 1024 * 1024;
 
 fn missing(field: &'static str) -> ValidationError {
     ValidationError::Missing { field }
@@ -399,8 +404,7 @@ impl Reassembler {
         if chunk.offset == 0 {
             self.version = chunk.version;
             self.total_len = chunk.total_len;
-            self.bytes.clear();
-            self.bytes.reserve(chunk.total_len as usize);
+            self.bytes = Vec::with_capacity(chunk.total_len.min(SNAPSHOT_RESERVE) as usize);
         } else if chunk.version != self.version || chunk.offset != self.bytes.len() as u64 {
             return Err(ValidationError::Sequence { field: "snapshot" });
         }
@@ -448,6 +452,20 @@ mod tests {
             assert_eq!((a.version, a.bytes, a.model_loss), (9, bytes, 0.5));
             assert_eq!(a.action_structure, Some(0.4));
         }
+    }
+
+    #[test]
+    fn a_claimed_length_takes_no_memory_and_one_over_the_limit_is_refused() {
+        let chunk = |total_len| pb::SnapshotChunk {
+            version: 1,
+            total_len,
+            data: vec![0; 8],
+            ..Default::default()
+        };
+        let mut r = Reassembler::default();
+        assert_eq!(r.push(chunk(MAX_SNAPSHOT_BYTES)), Ok(None));
+        assert!(r.bytes.capacity() as u64 <= SNAPSHOT_RESERVE);
+        assert!(r.push(chunk(MAX_SNAPSHOT_BYTES + 1)).is_err());
     }
 
     #[test]

@@ -29,7 +29,9 @@ pub(super) fn uniform_table(
     device: &Device,
 ) -> Param<Tensor<2>> {
     if tables == Tables::Zeros {
-        return Param::from_tensor(Tensor::zeros([rows, cols], device));
+        // `vec!` of zeros asks the allocator for zeroed memory: fresh pages, never written
+        // (`Tensor::zeros` writes every value)
+        return Param::from_tensor(nn::tensor2(vec![0.0; rows * cols], rows, cols, device));
     }
     // a linear layer on one-hots of width `rows`: U(-1/sqrt(rows), 1/sqrt(rows))
     let k = 1.0 / (rows as f32).sqrt();

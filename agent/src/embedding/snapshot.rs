@@ -45,7 +45,12 @@ impl Embedding {
     ) -> Result<Self, RecordError> {
         let mut model = EmbeddingModel::template(config, representation, states, actions, device);
         model.load_owned_bytes(snapshot.bytes)?;
-        Self::indexed(model, config, snapshot.version, index_threads)
+        // the bytes are dropped: back to the kernel before the index's memory comes on top
+        nn::release_freed();
+        let embedding = Self::indexed(model, config, snapshot.version, index_threads)?;
+        // and g's copy the index was built from
+        nn::release_freed();
+        Ok(embedding)
     }
 
     /// The loaded `model` with f's index over its action table.

@@ -1,5 +1,6 @@
 //! The catalogue alone, for a process that maps item ids to actions and needs no n-gram
-//! model: the Recommender serving a learned policy. It is the catalogue [`ModelHandle`]
+//! model: the Recommender serving a learned policy, and the learner and embedder reading the
+//! logged purchases ([`CatalogueHandle::logged_steps`]). It is the catalogue [`ModelHandle`]
 //! makes from the same settings ([`first_catalogue`], then the store's sessions in the order
 //! they were committed), made without the model's counts and without holding the data's
 //! sessions: at a million items the model takes 7 GB at its peak, the catalogue about 100 MB.
@@ -9,9 +10,10 @@
 use std::sync::{Arc, Mutex, RwLock};
 
 use jsae_env_spec::RecommenderConfig;
+use jsae_spaces::StateBatch;
 
 use super::data::for_each_training_session;
-use super::model_handle::{first_catalogue, refresh_every, store_dir};
+use super::model_handle::{first_catalogue, logged_steps_of, refresh_every, store_dir};
 use super::ngram::Catalogue;
 use super::{RecsysError, store};
 
@@ -52,6 +54,28 @@ impl CatalogueHandle {
         self.current
             .read()
             .map_or_else(|p| Arc::clone(p.get_ref()), |c| Arc::clone(&c))
+    }
+
+    /// The logged purchases as the environment's steps, as [`ModelHandle::logged_steps`]
+    /// gives them: the data's sessions read again one at a time, then the store's read so far.
+    ///
+    /// # Errors
+    /// When the data cannot be read (a store that cannot be read gives the data's steps
+    /// alone, with a warning).
+    pub fn logged_steps(&self, history: usize) -> Result<(StateBatch, Vec<u32>), RecsysError> {
+        let catalogue = self.current();
+        let until = *self.offset.lock().unwrap_or_else(|p| p.into_inner());
+        let mut read = Ok(());
+        let steps = logged_steps_of(&catalogue, history, |visit| {
+            read = for_each_training_session(&self.config, |s| visit(s));
+            if read.is_ok()
+                && let Some(dir) = store_dir(&self.config)
+                && let Err(e) = store::read_committed(dir, 0, until, |s, _| visit(&s))
+            {
+                tracing::warn!("recommender: logged steps without the rest of the store: {e}");
+            }
+        });
+        read.map(|()| steps)
     }
 
     /// Reads the sessions committed to the store since the last call; their new items take
@@ -121,6 +145,9 @@ mod tests {
             assert_eq!(m.catalogue(), &*c, "{source:?}");
             assert_eq!(c.len(), 300);
             assert_eq!(c.prefix_hash(300), m.catalogue().prefix_hash(300));
+            let steps = alone.logged_steps(3).expect("steps");
+            assert_eq!(steps, model.logged_steps(3), "{source:?}");
+            assert!(!steps.1.is_empty());
         }
     }
 }

@@ -245,44 +245,19 @@ impl ModelHandle {
     /// over them. A store that cannot be read gives the data's steps alone (with a warning).
     pub fn logged_steps(&self, history: usize) -> (StateBatch, Vec<u32>) {
         let model = self.current();
-        let catalogue = model.catalogue();
         let until = self
             .refresh
             .lock()
             .unwrap_or_else(|p| p.into_inner())
             .offset;
-        let (mut states, mut next) = (Vec::new(), Vec::new());
-        let mut window = vec![catalogue.none(); history.max(1)];
-        let mut steps_of = |s: &Session| {
-            window.fill(catalogue.none());
-            let mut first = true;
-            for k in s
-                .purchases
-                .iter()
-                .filter_map(|p| catalogue.slot(&p.item_id))
+        logged_steps_of(model.catalogue(), history, |visit| {
+            self.base.iter().for_each(&mut *visit);
+            if let Some(dir) = store_dir(&self.config)
+                && let Err(e) = store::read_committed(dir, 0, until, |s, _| visit(&s))
             {
-                if !first {
-                    states.extend_from_slice(&window);
-                    next.push(k);
-                }
-                first = false;
-                window.rotate_left(1);
-                if let Some(last) = window.last_mut() {
-                    *last = k;
-                }
+                tracing::warn!("recommender: logged steps without the rest of the store: {e}");
             }
-        };
-        self.base.iter().for_each(&mut steps_of);
-        if let Some(dir) = store_dir(&self.config)
-            && let Err(e) = store::read_committed(dir, 0, until, |s, _| steps_of(&s))
-        {
-            tracing::warn!("recommender: logged steps without the rest of the store: {e}");
-        }
-        let states = StateBatch::Categorical {
-            factors: history.max(1),
-            data: states,
-        };
-        (states, next)
+        })
     }
 
     /// Reads sessions added to the store since the last call and, if there are any,
@@ -327,6 +302,43 @@ impl ModelHandle {
         r.checkpointed = r.offset;
         Ok(())
     }
+}
+
+/// The environment's steps in the sessions `sessions` visits: for every `catalogue` purchase
+/// after a session's first, the state before it (the session's last `history` catalogue
+/// purchases, "none" where there are fewer, as an episode starts) and the item bought.
+/// Purchases outside the catalogue are passed over, as the model passes over them.
+pub(super) fn logged_steps_of(
+    catalogue: &Catalogue,
+    history: usize,
+    sessions: impl FnOnce(&mut dyn FnMut(&Session)),
+) -> (StateBatch, Vec<u32>) {
+    let (mut states, mut next) = (Vec::new(), Vec::new());
+    let mut window = vec![catalogue.none(); history.max(1)];
+    sessions(&mut |s: &Session| {
+        window.fill(catalogue.none());
+        let mut first = true;
+        for k in s
+            .purchases
+            .iter()
+            .filter_map(|p| catalogue.slot(&p.item_id))
+        {
+            if !first {
+                states.extend_from_slice(&window);
+                next.push(k);
+            }
+            first = false;
+            window.rotate_left(1);
+            if let Some(last) = window.last_mut() {
+                *last = k;
+            }
+        }
+    });
+    let states = StateBatch::Categorical {
+        factors: history.max(1),
+        data: states,
+    };
+    (states, next)
 }
 
 /// The process's model for these settings, loaded on first use. With a session store, a

@@ -169,6 +169,11 @@ pub fn write_run_plots(
 /// there is no summary yet), so an older run's checkpoints left in the directory are not
 /// drawn.
 pub fn plot_run_dir(dir: &RunDir, config: &TrainConfig) -> io::Result<Vec<PathBuf>> {
+    // only the gridworlds' embeddings are drawn: another run's is not read (at a million
+    // items that is 801 MB, and f's index built for nothing)
+    if !embeddings::plots_embeddings(config) {
+        return write_run_plots(dir, config, None);
+    }
     let embedding = match run_embedding(dir)? {
         Some(snapshot) => match load_embedding(&snapshot, config) {
             Ok(embedding) => Some(embedding),
