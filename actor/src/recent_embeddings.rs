@@ -41,13 +41,7 @@ mod tests {
     use super::*;
 
     fn snapshot(version: u64) -> Arc<EmbeddingSnapshot> {
-        Arc::new(EmbeddingSnapshot {
-            version,
-            bytes: Vec::new(),
-            model_loss: 0.0,
-            decoder_loss: 0.0,
-            action_structure: None,
-        })
+        Arc::new(EmbeddingSnapshot::from_bytes(version, Vec::new()))
     }
 
     #[test]

@@ -27,13 +27,7 @@ pub fn env_steps_per_s(items: u32, seconds: f64) -> anyhow::Result<f64> {
         embedding_bytes(&config, &generated, &catalogue, 1, tag)?
     };
     let mut worker = ActorWorker::new(&config, 0, config.device)?;
-    worker.set_embedding(&EmbeddingSnapshot {
-        version: 1,
-        bytes,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-        action_structure: None,
-    })?;
+    worker.set_embedding(&EmbeddingSnapshot::from_bytes(1, bytes))?;
     worker.set_policy(&PolicySnapshot {
         version: 1,
         bytes: policy_bytes(&config)?,

@@ -72,14 +72,8 @@ fn recommender(algo: Algo) -> anyhow::Result<(Arc<Recommender>, Vec<Vec<String>>
             &mut rng,
             &device,
         );
-        rec.set_embedding(EmbeddingSnapshot {
-            version: 1,
-            bytes: model.to_bytes()?,
-            model_loss: 0.0,
-            decoder_loss: 0.0,
-            action_structure: None,
-        })
-        .map_err(anyhow::Error::msg)?;
+        rec.set_embedding(EmbeddingSnapshot::from_bytes(1, model.to_bytes()?))
+            .map_err(anyhow::Error::msg)?;
     }
     // histories as users make them: three purchases drawn from the n-gram model
     let model = jsae_envs::recsys::model_handle(&config.environment.recommender)?.current();

@@ -14,13 +14,7 @@ use crate::{EmbedderTrainer, pretrain_from_recording};
 /// The latest embedding checkpoint in `dir`, if any.
 pub fn latest_checkpoint(dir: &Path) -> Option<EmbeddingSnapshot> {
     let (version, bytes) = Checkpoints::new(dir).read_latest(Weights::Embedding)?;
-    Some(EmbeddingSnapshot {
-        version,
-        bytes,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-        action_structure: None,
-    })
+    Some(EmbeddingSnapshot::from_bytes(version, bytes))
 }
 
 /// An embedder trainer opened on its checkpoint folder.

@@ -50,13 +50,7 @@ fn an_embedding_of_another_catalogue_is_refused_with_the_reason() {
         if let Some(tag) = tag {
             tag.append_to(&mut bytes);
         }
-        EmbeddingSnapshot {
-            version,
-            bytes,
-            model_loss: 0.0,
-            decoder_loss: 0.0,
-            action_structure: None,
-        }
+        EmbeddingSnapshot::from_bytes(version, bytes)
     };
     let refusals = [
         CatalogueTag {

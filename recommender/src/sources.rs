@@ -40,13 +40,7 @@ pub fn load_run(rec: &Recommender, dir: &Path) -> anyhow::Result<bool> {
             anyhow::anyhow!("{}: no embedding checkpoint yet", ckpt.path().display())
         })?;
         if version > rec.embedding_version() && rec.refused_embedding() != Some(version) {
-            let set = rec.set_embedding(EmbeddingSnapshot {
-                version,
-                bytes: read(&path)?,
-                model_loss: 0.0,
-                decoder_loss: 0.0,
-                action_structure: None,
-            });
+            let set = rec.set_embedding(EmbeddingSnapshot::from_bytes(version, read(&path)?));
             match set {
                 Ok(()) => changed = true,
                 // another catalogue's: said once (an error) and not read again; the policy

@@ -125,6 +125,20 @@ pub struct EmbeddingSnapshot {
     pub action_structure: Option<f32>,
 }
 
+impl EmbeddingSnapshot {
+    /// A snapshot of stored weights (a checkpoint, a file): the training round's losses and
+    /// structure are not stored with them.
+    pub fn from_bytes(version: u64, bytes: Vec<u8>) -> Self {
+        Self {
+            version,
+            bytes,
+            model_loss: 0.0,
+            decoder_loss: 0.0,
+            action_structure: None,
+        }
+    }
+}
+
 /// A versioned copy of the policy (and whatever it needs at inference), learner -> actors.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct PolicySnapshot {

@@ -57,24 +57,17 @@ pub fn run_embedding(dir: &RunDir) -> io::Result<Option<EmbeddingSnapshot>> {
             .and_then(|(v, bytes)| (v == version).then_some(bytes)),
         Err(e) => return Err(e),
     };
-    Ok(bytes.map(|bytes| snapshot(version, bytes)))
+    Ok(bytes.map(|bytes| EmbeddingSnapshot::from_bytes(version, bytes)))
 }
 
 /// The newest embedding checkpoint of a run, if any (whichever run wrote it: see
 /// [`run_embedding`] for the one a finished run's summary names).
 pub fn latest_embedding(dir: &RunDir) -> Option<EmbeddingSnapshot> {
     let (version, path) = dir.checkpoints().newest(Weights::Embedding)?;
-    Some(snapshot(version, read_weights(&path).ok()?))
-}
-
-fn snapshot(version: u64, bytes: Vec<u8>) -> EmbeddingSnapshot {
-    EmbeddingSnapshot {
+    Some(EmbeddingSnapshot::from_bytes(
         version,
-        bytes,
-        model_loss: 0.0,
-        decoder_loss: 0.0,
-        action_structure: None,
-    }
+        read_weights(&path).ok()?,
+    ))
 }
 
 /// `snapshot` loaded with the run's settings.
