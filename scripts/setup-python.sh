@@ -5,7 +5,8 @@
 #     language against wire/proto/);
 #   kubernetes-validate==1.37.0: the offline check of deploy/k8s;
 #   mcap==1.6.0, mcap-protobuf-support==0.6.0: recordings read back by a third-party reader;
-#   tensorboard==2.21.0: event files read back by TensorBoard's own reader.
+#   tensorboard==2.21.0: event files read back by TensorBoard's own reader;
+#   and the project's own package, python/ (jsae.envs, jsae.recommender).
 # Idempotent and safe to run concurrently; prints the venv's python. Override the location
 # with JSAE_VENV.
 set -euo pipefail
@@ -26,6 +27,23 @@ if [[ ! -f "$stamp" ]]; then
             "kubernetes-validate==1.37.0" \
             "mcap==1.6.0" "mcap-protobuf-support==0.6.0" "tensorboard==2.21.0" >&2
         touch "$stamp"
+    fi
+fi
+# The project's own package (python/: jsae.envs, the environment worker `jsae train --env
+# gym:ID` starts, and jsae.recommender), built from this checkout's proto: reinstalled when
+# python/ or the proto changed.
+sum="$(cd "$root" && find python/pyproject.toml python/setup.py python/jsae wire/proto/jsae.proto \
+    -type f \( -name '*.py' -o -name '*.toml' -o -name '*.proto' \) -not -path '*/_proto/*' \
+    -print0 | sort -z | xargs -0 sha256sum | sha256sum | cut -c1-16)"
+package_stamp="$venv/.jsae-package-$sum"
+if [[ ! -f "$package_stamp" ]]; then
+    exec 9>"$venv.lock"
+    flock 9
+    if [[ ! -f "$package_stamp" ]]; then
+        echo "setup-python: installing the jsae package (python/) into $venv" >&2
+        "$venv/bin/python" -m pip install --quiet --disable-pip-version-check "$root/python" >&2
+        rm -f "$venv"/.jsae-package-*
+        touch "$package_stamp"
     fi
 fi
 echo "$venv/bin/python"

@@ -88,7 +88,38 @@ pub async fn run(
     follow_learner(&mut tasks, follow, hello, to_stepping);
     push_to_learner(&mut tasks, learner_channel, fragments_rx, reports_rx);
 
+    // a gym environment's workers connect to this actor's environment host
+    let mut hosting = None;
+    let mut pool: Option<Box<dyn jsae_envs::EnvPool>> = None;
+    let mut pool_stop = None;
+    if config.env == jsae_settings::EnvName::Gym {
+        let plan = options
+            .env_host
+            .clone()
+            .ok_or_else(|| anyhow::anyhow!("a gym environment needs --env-listen"))?;
+        let (remote, hosted) = jsae_remote_envs::host(
+            &config.environment.gym,
+            config.envs_per_actor,
+            &options.security,
+            &plan,
+        )
+        .await
+        .map_err(|e| anyhow::anyhow!(e))?;
+        net::logging::announce_listening("jsae-actor environments", hosted.addr);
+        pool_stop = Some(remote.stopper());
+        pool = Some(Box::new(remote));
+        hosting = Some(hosted);
+    }
     let stop_flag = Arc::new(AtomicBool::new(false));
+    let stop_all = {
+        let (stop_flag, pool_stop) = (stop_flag.clone(), pool_stop.clone());
+        move || {
+            stop_flag.store(true, Ordering::Relaxed);
+            if let Some(p) = &pool_stop {
+                p.store(true, Ordering::Relaxed);
+            }
+        }
+    };
     let stepping = {
         let stop_flag = stop_flag.clone();
         tokio::task::spawn_blocking(move || {
@@ -102,7 +133,7 @@ pub async fn run(
                 embedder_lost,
                 share,
             };
-            stepping_loop(&config, &options, &links, &stop_flag)
+            stepping_loop(&config, &options, &links, &stop_flag, pool)
         })
     };
     tokio::pin!(stepping);
@@ -110,12 +141,12 @@ pub async fn run(
     let exit = tokio::select! {
         r = &mut stepping => r?,
         Some(gave_up) = gave_up_rx.recv() => {
-            stop_flag.store(true, Ordering::Relaxed);
+            stop_all();
             tasks.abort_all();
             anyhow::bail!("{gave_up}");
         }
         () = &mut stop => {
-            stop_flag.store(true, Ordering::Relaxed);
+            stop_all();
             // the thread may be waiting on a full queue: give it a moment, then leave
             match tokio::time::timeout(Duration::from_secs(2), &mut stepping).await {
                 Ok(r) => r?,
@@ -124,6 +155,7 @@ pub async fn run(
         }
     };
     tasks.abort_all();
+    drop(hosting);
     exit
 }
 
@@ -278,6 +310,14 @@ pub struct ActorArgs {
     /// `--auth-token-file`, `--tls-*`.
     #[command(flatten)]
     pub security: SecurityFlags,
+    /// Where the workers of a gym environment connect (`host:port`; port 0 picks a free
+    /// one, printed on stdout as `jsae-actor environments listening on ADDR`). The actor
+    /// starts `environment.gym.workers` of them itself (0: none, they connect by hand).
+    #[arg(long, env = "JSAE_ENV_LISTEN", default_value = "127.0.0.1:0")]
+    pub env_listen: String,
+    /// Where the workers this actor starts write their output [default: this process's].
+    #[arg(long, value_name = "DIR")]
+    pub worker_logs: Option<PathBuf>,
 }
 
 /// Runs the actor process: exit 0 when the learner ends the run or on SIGINT/SIGTERM, 2 for a
@@ -317,6 +357,13 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
             let mut registry = MetricsRegistry::default();
             let metrics = ActorMetrics::register(&mut registry);
             jsae_telemetry::serve(&args.metrics, registry).await?;
+            let env_host =
+                (config.env == jsae_settings::EnvName::Gym).then(|| jsae_remote_envs::HostPlan {
+                    listen: args.env_listen.clone(),
+                    workers: config.environment.gym.workers as usize,
+                    log_dir: args.worker_logs.clone(),
+                    name: format!("{id}-"),
+                });
             let options = ActorOptions {
                 id,
                 embedder,
@@ -324,6 +371,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
                 record,
                 metrics,
                 security,
+                env_host,
             };
             Ok(run(config, options, shutdown).await?)
         },

@@ -60,6 +60,9 @@ pub struct ActorOptions {
     pub metrics: ActorMetrics,
     /// TLS and the token sent to the embedder and the learner.
     pub security: Security,
+    /// Where a gym environment's workers connect, and how many this actor starts
+    /// (`--env-listen`; remote environments only).
+    pub env_host: Option<jsae_remote_envs::HostPlan>,
 }
 
 pub(crate) enum Control {
@@ -88,8 +91,12 @@ pub(crate) fn stepping_loop(
     options: &ActorOptions,
     links: &Links,
     stop: &AtomicBool,
+    pool: Option<Box<dyn jsae_envs::EnvPool>>,
 ) -> anyhow::Result<ActorReport> {
-    let mut worker = ActorWorker::new(config, options.id, config.device)?;
+    let mut worker = match pool {
+        Some(pool) => ActorWorker::with_pool(config, options.id, config.device, pool),
+        None => ActorWorker::new(config, options.id, config.device)?,
+    };
     let mut recorder = match &options.record {
         Some((path, run_id)) => {
             let info =

@@ -15,7 +15,7 @@ use jsae_wire::{
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-use jsae_envs::{ActionRef, Env, make_env};
+use jsae_envs::{ActionRef, EnvPool, LocalEnvs, make_env, step_threads};
 use jsae_settings::TrainConfig;
 
 mod rollout;
@@ -28,7 +28,7 @@ pub enum WorkerError {
     Snapshot(#[from] SwapError),
     /// The environment could not be made (the recommender's data).
     #[error("environment: {0}")]
-    Env(#[from] jsae_envs::RecsysError),
+    Env(#[from] jsae_envs::MakeEnvError),
 }
 
 /// What one rollout produced.
@@ -54,14 +54,14 @@ struct Running {
 pub struct ActorWorker {
     id: u64,
     config: TrainConfig,
-    envs: Vec<Box<dyn Env>>,
+    /// The rollouts' environments, and the evaluation's (number `envs.len()`).
+    envs: Box<dyn EnvPool>,
     env_rngs: Vec<ChaCha8Rng>,
     rng: ChaCha8Rng,
     states: StateSpace,
     actions: ActionSpace,
     weights: Weights,
     running: Vec<Running>,
-    eval_env: Option<Box<dyn Env>>,
     current: StateBatch,
     env_steps: u64,
     /// This worker's random nonzero number ([`jsae_wire::random_id`]): its fragments' step
@@ -93,28 +93,43 @@ fn actor_seed(seed: u64, id: u64, stream: u64) -> u64 {
 }
 
 impl ActorWorker {
-    /// An actor with `config.envs_per_actor` environments, all reset.
+    /// An actor with `config.envs_per_actor` built-in environments, all reset.
     pub fn new(config: &TrainConfig, id: u64, device: DeviceKind) -> Result<Self, WorkerError> {
-        let mut envs: Vec<Box<dyn Env>> = (0..config.envs_per_actor)
+        let envs = (0..=config.envs_per_actor)
             .map(|_| make_env(config.env, &config.environment))
             .collect::<Result<_, _>>()?;
-        let eval_env = make_env(config.env, &config.environment)?;
+        let threads = step_threads(config.step_threads, config.actors, !config.one_process);
+        Ok(Self::with_pool(
+            config,
+            id,
+            device,
+            Box::new(LocalEnvs::new(envs, threads)),
+        ))
+    }
+
+    /// An actor stepping `envs` (`config.envs_per_actor` of them, and the evaluation's),
+    /// all reset.
+    pub fn with_pool(
+        config: &TrainConfig,
+        id: u64,
+        device: DeviceKind,
+        mut envs: Box<dyn EnvPool>,
+    ) -> Self {
         let mut env_rngs: Vec<ChaCha8Rng> = (0..envs.len())
             .map(|k| ChaCha8Rng::seed_from_u64(actor_seed(config.seed, id, 1000 + k as u64)))
             .collect();
-        let states = envs[0].state_space().clone();
-        let actions = envs[0].action_space().clone();
+        let states = envs.state_space().clone();
+        let actions = envs.action_space().clone();
         let mut current = StateBatch::empty(&states);
-        for (env, rng) in envs.iter_mut().zip(&mut env_rngs) {
-            env.reset(rng);
-            env.push_state(&mut current);
+        for (i, rng) in env_rngs.iter_mut().enumerate() {
+            envs.reset(i, rng);
+            envs.push_state(i, &mut current);
         }
         let device = device.device();
         let weights = Weights::new(config, &states, &actions, &device);
-        Ok(Self {
+        Self {
             id,
             config: config.clone(),
-            eval_env: Some(eval_env),
             running: vec![Running::default(); envs.len()],
             envs,
             env_rngs,
@@ -129,7 +144,7 @@ impl ActorWorker {
             episodes: vec![0; config.envs_per_actor],
             recording: false,
             active: config.envs_per_actor,
-        })
+        }
     }
 
     /// Steps the first `envs` environments from the next rollout on (at least one, at most
@@ -141,8 +156,8 @@ impl ActorWorker {
         if envs != self.active {
             self.active = envs;
             self.current = StateBatch::empty(&self.states);
-            for env in &self.envs[..envs] {
-                env.push_state(&mut self.current);
+            for i in 0..envs {
+                self.envs.push_state(i, &mut self.current);
             }
         }
         envs
@@ -352,10 +367,7 @@ impl ActorWorker {
         seed: u64,
         mut sampling: Option<ChaCha8Rng>,
     ) -> Vec<EpisodeStat> {
-        let mut env = match self.eval_env.take() {
-            Some(env) => env,
-            None => unreachable!("evaluate puts the environment back"),
-        };
+        let env = self.envs.len();
         let mut env_rng = ChaCha8Rng::seed_from_u64(seed);
         let head_space = self.weights.acting_policy().head().action_space();
         let mut stats = Vec::with_capacity(episodes);
@@ -363,12 +375,13 @@ impl ActorWorker {
             (StateBatch::empty(&self.states), Vec::new(), Vec::new());
         let mut policy_action = ActionBatch::empty(&head_space);
         let mut env_action = ActionBatch::empty(&self.actions);
-        for _ in 0..episodes {
-            env.reset(&mut env_rng);
+        let mut lost = 0;
+        while stats.len() < episodes && lost <= episodes {
+            self.envs.reset(env, &mut env_rng);
             let mut run = Running::default();
             loop {
                 state.clear();
-                env.push_state(&mut state);
+                self.envs.push_state(env, &mut state);
                 policy_action.clear();
                 env_action.clear();
                 self.policy_inputs(&state, &mut x);
@@ -389,8 +402,10 @@ impl ActorWorker {
                     None => self.env_actions(&policy_action, &mut env_action),
                 }
                 let step = match &env_action {
-                    ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[0])),
-                    ActionBatch::Continuous { data, .. } => env.step(ActionRef::Continuous(data)),
+                    ActionBatch::Discrete(a) => self.envs.step_one(env, ActionRef::Discrete(a[0])),
+                    ActionBatch::Continuous { data, .. } => {
+                        self.envs.step_one(env, ActionRef::Continuous(data))
+                    }
                 };
                 run.ret += step.reward;
                 run.len += 1;
@@ -405,17 +420,23 @@ impl ActorWorker {
                     "{} evaluation step",
                     if sampling.is_none() { "deterministic" } else { "sampled" }
                 );
+                if step.lost {
+                    // the environment went away mid-episode: this episode is not counted,
+                    // and another starts wherever the pool can
+                    tracing::warn!("an evaluation environment was lost; its episode is run again");
+                    lost += 1;
+                    break;
+                }
                 if step.terminated || step.truncated {
                     stats.push(EpisodeStat {
                         ret: run.ret,
                         length: run.len,
-                        success: env.has_success().then_some(step.success),
+                        success: self.envs.has_success().then_some(step.success),
                     });
                     break;
                 }
             }
         }
-        self.eval_env = Some(env);
         stats
     }
 }

@@ -169,7 +169,11 @@ fn print_config(run: &RunFlags) -> ExitCode {
 /// `jsae recommender-baseline`: the reference recommenders' returns, one JSON line each.
 fn recommender_baseline(run: RunFlags, episodes: usize) -> ExitCode {
     let run = RunFlags {
-        env: Some(run.env.unwrap_or(EnvName::Recommender)),
+        env: Some(
+            run.env
+                .clone()
+                .unwrap_or_else(|| EnvName::Recommender.into()),
+        ),
         ..run
     };
     let config = run

@@ -5,7 +5,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::Args;
-use jsae_actor::worker::ActorWorker;
 use jsae_agent::greedy::GreedyDecode;
 use jsae_run_dir::EvalStats;
 use jsae_run_dir::{RunDir, Weights};
@@ -97,7 +96,9 @@ fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
     };
     let bytes = jsae_run_dir::read_weights(&policy_path)
         .map_err(|e| (2, format!("{}: {e}", policy_path.display())))?;
-    let mut worker = ActorWorker::new(&config, 0, config.device).map_err(|e| (1, e.to_string()))?;
+    // a gym run's evaluation steps its environment in a worker this process starts
+    let (mut worker, _hosting) =
+        jsae_train::actor_worker(&config, 0).map_err(|e| (1, e.to_string()))?;
     if config.algo.representation().needs_embedder() {
         // the version summary.json names (the newest where the run has no summary yet)
         let emb = jsae_report::plot::run_embedding(&dir)

@@ -9,8 +9,16 @@ use serde::{Deserialize, Serialize};
 /// This file, whose structs' doc comments explain each environment setting (`jsae config`
 /// prints them beside the values).
 pub const SOURCE: &str = include_str!("lib.rs");
+/// The gym settings' source (`[environment.gym]`), for the same purpose.
+pub const GYM_SOURCE: &str = include_str!("gym.rs");
+/// The example environment's source (`[environment.corridor]`), for the same purpose.
+pub const CORRIDOR_SOURCE: &str = jsae_env_example::SOURCE;
 
 use jsae_spaces::{ActionSpace, StateSpace};
+
+mod gym;
+pub use gym::{GymConfig, GymSpace, MAX_GYM_BOX, MAX_GYM_DISCRETE};
+pub use jsae_env_example::CorridorConfig;
 
 /// The environments `jsae train --env` accepts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
@@ -28,6 +36,12 @@ pub enum EnvName {
     Ant,
     /// The n-gram purchase MDP built from real sessions (Shani et al.).
     Recommender,
+    /// The example of an environment brought in Rust: a corridor whose many actions are
+    /// three motions (the `jsae-env-example` crate).
+    Corridor,
+    /// An environment stepped by Python worker processes (`--env gym:ID`: a Gymnasium id,
+    /// `[environment.gym]`; docs/src/environments/bring-your-own.md).
+    Gym,
 }
 
 impl EnvName {
@@ -40,6 +54,8 @@ impl EnvName {
             Self::HalfCheetah => "half-cheetah",
             Self::Ant => "ant",
             Self::Recommender => "recommender",
+            Self::Corridor => "corridor",
+            Self::Gym => "gym",
         }
     }
 
@@ -61,6 +77,10 @@ pub struct EnvConfig {
     pub mujoco: MujocoConfig,
     /// The recommender.
     pub recommender: RecommenderConfig,
+    /// The corridor (the example crate's settings).
+    pub corridor: CorridorConfig,
+    /// An environment of Python workers (`--env gym:ID`).
+    pub gym: GymConfig,
 }
 
 /// Where the recommender's purchase sessions come from.
@@ -456,6 +476,7 @@ pub fn validate_env_config(config: &EnvConfig) -> Result<(), String> {
     r.catalogue
         .check()
         .map_err(|e| format!("recommender.catalogue.{e}"))?;
+    config.corridor.check()?;
     Ok(())
 }
 
@@ -468,6 +489,11 @@ impl EnvName {
             Self::Slotmachine => config.slotmachine.horizon,
             Self::HalfCheetah | Self::Ant => config.mujoco.max_steps,
             Self::Recommender => config.recommender.episode_len,
+            Self::Corridor => config.corridor.max_steps,
+            Self::Gym => match config.gym.max_steps {
+                0 => u32::MAX,
+                n => n,
+            },
         }
     }
 
@@ -482,9 +508,16 @@ impl EnvName {
         }
     }
 
-    /// The state and action spaces of this environment under `config`.
+    /// The state and action spaces of this environment under `config`. A gym environment's
+    /// come from `[environment.gym]`, which a run's validation requires to be complete
+    /// (until it is, a one-state, one-action placeholder).
     pub fn spaces(self, config: &EnvConfig) -> (StateSpace, ActionSpace) {
         match self {
+            Self::Corridor => config.corridor.spaces(),
+            Self::Gym => config
+                .gym
+                .spaces()
+                .unwrap_or_else(|_| (StateSpace::discrete(1), ActionSpace::Discrete { n: 1 })),
             Self::Gridworld => (
                 StateSpace::Real { dim: 2 },
                 ActionSpace::Discrete {

@@ -144,6 +144,7 @@ impl Env for Gridworld {
             terminated: reached,
             truncated: !reached && self.steps >= c.max_steps,
             success: reached,
+            lost: false,
         }
     }
 

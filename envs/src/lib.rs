@@ -13,58 +13,22 @@
 mod geometry;
 pub mod gridworld;
 pub mod mujoco;
+mod pool;
 pub mod recsys;
 pub mod slotmachine;
 
-use jsae_spaces::{ActionBatch, ActionSpace, StateBatch, StateSpace};
-use rand_chacha::ChaCha8Rng;
+use jsae_spaces::ActionBatch;
 
 pub use crate::recsys::{RecommenderEnv, RecsysError};
 pub use gridworld::Gridworld;
+pub use jsae_env_api::{ActionRef, Env, Step};
 pub use jsae_env_spec::{
-    EnvConfig, EnvName, GridworldConfig, MujocoConfig, SlotmachineConfig, validate_env_config,
+    EnvConfig, EnvName, GridworldConfig, GymConfig, GymSpace, MujocoConfig, SlotmachineConfig,
+    validate_env_config,
 };
 pub use mujoco::{MujocoEnv, Robot};
+pub use pool::{EnvPool, LocalEnvs};
 pub use slotmachine::Slotmachine;
-
-/// An action handed to an environment.
-#[derive(Debug, Clone, Copy)]
-pub enum ActionRef<'a> {
-    /// A discrete action index.
-    Discrete(u32),
-    /// A continuous action (not clipped by the caller).
-    Continuous(&'a [f32]),
-}
-
-/// What one step produced.
-#[derive(Debug, Clone, Copy, PartialEq, Default)]
-pub struct Step {
-    /// The reward.
-    pub reward: f64,
-    /// A terminal state was reached.
-    pub terminated: bool,
-    /// The time limit ended the episode (never together with `terminated`).
-    pub truncated: bool,
-    /// The step reached the goal, for environments with a success notion.
-    pub success: bool,
-}
-
-/// An environment. `reset` must be called before the first `step` and after every step
-/// that terminated or truncated.
-pub trait Env: Send {
-    /// The state space.
-    fn state_space(&self) -> &StateSpace;
-    /// The action space.
-    fn action_space(&self) -> &ActionSpace;
-    /// Whether episodes have a success notion (reported as `eval_success_rate`).
-    fn has_success(&self) -> bool;
-    /// Starts a new episode; any randomness comes from `rng`.
-    fn reset(&mut self, rng: &mut ChaCha8Rng);
-    /// Executes one action.
-    fn step(&mut self, action: ActionRef<'_>) -> Step;
-    /// Appends the current state to `out`.
-    fn push_state(&self, out: &mut StateBatch);
-}
 
 /// Steps `envs[i]` with row `i` of `actions` into `out[i]`, on up to `threads` threads
 /// (contiguous chunks of environments: the first on the calling thread, the others on
@@ -124,8 +88,20 @@ pub fn step_threads(configured: usize, actors: usize, beside: bool) -> usize {
     }
 }
 
-/// Builds the named environment (only the recommender can fail: it reads its data).
-pub fn make_env(name: EnvName, config: &EnvConfig) -> Result<Box<dyn Env>, RecsysError> {
+/// Why an environment could not be built here.
+#[derive(Debug, thiserror::Error)]
+pub enum MakeEnvError {
+    /// The recommender's data.
+    #[error(transparent)]
+    Recsys(#[from] RecsysError),
+    /// A gym environment steps in Python workers, through an actor's environment host.
+    #[error("gym:{0} steps in Python worker processes connected to an actor, not in this process")]
+    Remote(String),
+}
+
+/// Builds the named environment (the recommender can fail: it reads its data; a gym
+/// environment is not built here).
+pub fn make_env(name: EnvName, config: &EnvConfig) -> Result<Box<dyn Env>, MakeEnvError> {
     Ok(match name {
         EnvName::Gridworld => Box::new(Gridworld::new(config.gridworld.clone(), false)),
         EnvName::GridworldDiscrete => Box::new(Gridworld::new(config.gridworld.clone(), true)),
@@ -133,12 +109,16 @@ pub fn make_env(name: EnvName, config: &EnvConfig) -> Result<Box<dyn Env>, Recsy
         EnvName::HalfCheetah => Box::new(MujocoEnv::new(Robot::HalfCheetah, &config.mujoco)),
         EnvName::Ant => Box::new(MujocoEnv::new(Robot::Ant, &config.mujoco)),
         EnvName::Recommender => Box::new(RecommenderEnv::new(config)?),
+        EnvName::Corridor => Box::new(jsae_env_example::Corridor::new(config.corridor.clone())),
+        EnvName::Gym => return Err(MakeEnvError::Remote(config.gym.id.clone())),
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use jsae_spaces::StateBatch;
+    use rand_chacha::ChaCha8Rng;
 
     #[test]
     fn the_settings_give_the_spaces_the_environments_have() {
@@ -158,6 +138,7 @@ mod tests {
                 EnvName::HalfCheetah,
                 EnvName::Ant,
                 EnvName::Recommender,
+                EnvName::Corridor,
             ] {
                 let env = make_env(name, &config).expect("builds");
                 let (states, actions) = name.spaces(&config);

@@ -245,6 +245,7 @@ impl MujocoEnv {
             terminated,
             truncated: !terminated && self.steps >= self.max_steps,
             success: false,
+            lost: false,
         }
     }
 

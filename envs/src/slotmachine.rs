@@ -121,6 +121,7 @@ impl Env for Slotmachine {
             terminated: false,
             truncated: self.steps >= self.config.horizon,
             success: false,
+            lost: false,
         }
     }
 

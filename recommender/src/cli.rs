@@ -71,7 +71,12 @@ impl RecommenderArgs {
 
 fn config_of(args: &RecommenderArgs, security: &Security) -> Result<TrainConfig, String> {
     let flags = RunFlags {
-        env: Some(args.flags.env.unwrap_or(EnvName::Recommender)),
+        env: Some(
+            args.flags
+                .env
+                .clone()
+                .unwrap_or_else(|| EnvName::Recommender.into()),
+        ),
         config: args.settings_file(),
         ..args.flags.clone()
     };

@@ -8,13 +8,15 @@ use std::fmt::Write as _;
 use crate::TrainConfig;
 
 /// The sources of every struct a run's settings are made of.
-const SOURCES: [&str; 6] = [
+const SOURCES: [&str; 8] = [
     include_str!("run.rs"),
     include_str!("ppo.rs"),
     include_str!("ppo_recommender.rs"),
     include_str!("embedding.rs"),
     include_str!("embedding_recommender.rs"),
     jsae_env_spec::SOURCE,
+    jsae_env_spec::GYM_SOURCE,
+    jsae_env_spec::CORRIDOR_SOURCE,
 ];
 
 /// A field of a settings struct: its type's name (`Option<T>` read as `T`) and its doc.

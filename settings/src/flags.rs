@@ -9,9 +9,11 @@ use super::{Algo, ConfigError, DeviceKind, EnvName, TrainConfig};
 /// `--env/--algo/--seed/--config/--set`.
 #[derive(Debug, Clone, Default, PartialEq, Eq, clap::Args)]
 pub struct RunFlags {
-    /// Environment [default: the settings file's, else gridworld-discrete].
-    #[arg(long, value_enum, env = "JSAE_ENV")]
-    pub env: Option<EnvName>,
+    /// Environment: gridworld, gridworld-discrete, slotmachine, half-cheetah, ant,
+    /// recommender, or gym:ID for a Gymnasium environment stepped by Python workers (e.g.
+    /// gym:CartPole-v1) [default: the settings file's, else gridworld-discrete].
+    #[arg(long, env = "JSAE_ENV", value_name = "ENV")]
+    pub env: Option<EnvArg>,
     /// Algorithm [default: the settings file's, else jsae].
     #[arg(long, value_enum, env = "JSAE_ALGO")]
     pub algo: Option<Algo>,
@@ -32,9 +34,28 @@ impl RunFlags {
     /// settings file over them, then the seed. Not validated: a command sets its own flags
     /// first and then calls [`TrainConfig::validate`].
     pub fn layered(&self) -> Result<TrainConfig, ConfigError> {
-        let mut c =
-            TrainConfig::from_layers_with(self.env, self.algo, self.config.as_deref(), &self.set)?;
+        let mut sets = self.set.clone();
+        if let Some(id) = self.env.as_ref().and_then(|e| e.gym_id.as_ref()) {
+            // `--env gym:ID` is `environment.gym.id`, laid over the file like a --set
+            sets.insert(0, format!("environment.gym.id={}", toml_string(id)));
+        }
+        let env = self.env.as_ref().map(|e| e.name);
+        let mut c = TrainConfig::from_layers_with(env, self.algo, self.config.as_deref(), &sets)?;
         c.seed = self.seed.unwrap_or(c.seed);
+        if c.env == EnvName::Gym && c.environment.gym.observation.is_none() {
+            // a gym environment's spaces (and the defaults that follow them) come from the
+            // environment itself
+            crate::complete_gym(&mut c).map_err(ConfigError::Invalid)?;
+            let described = c.environment.gym.clone();
+            let mut sets = sets;
+            sets.push(format!(
+                "environment.gym={}",
+                toml::Value::try_from(&described)
+                    .map_err(|e| ConfigError::Invalid(e.to_string()))?
+            ));
+            c = TrainConfig::from_layers_with(env, self.algo, self.config.as_deref(), &sets)?;
+            c.seed = self.seed.unwrap_or(c.seed);
+        }
         Ok(c)
     }
 
@@ -108,4 +129,54 @@ pub fn device_parser() -> impl clap::builder::TypedValueParser<Value = DeviceKin
     use clap::builder::TypedValueParser;
     let names = DeviceKind::ALL.map(DeviceKind::as_str);
     clap::builder::PossibleValuesParser::new(names).map(|name| name.parse().unwrap_or_default())
+}
+
+/// A `--env` value: a built-in environment's name, or `gym:ID`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct EnvArg {
+    /// The environment.
+    pub name: EnvName,
+    /// The Gymnasium id of `gym:ID`.
+    pub gym_id: Option<String>,
+}
+
+impl From<EnvName> for EnvArg {
+    fn from(name: EnvName) -> Self {
+        Self { name, gym_id: None }
+    }
+}
+
+impl std::str::FromStr for EnvArg {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        if let Some(id) = s.strip_prefix("gym:") {
+            if id.is_empty() || id.chars().any(|c| c.is_control() || c.is_whitespace()) {
+                return Err(format!(
+                    "gym:ID needs a Gymnasium id after the colon, not {id:?}"
+                ));
+            }
+            return Ok(Self {
+                name: EnvName::Gym,
+                gym_id: Some(id.to_string()),
+            });
+        }
+        <EnvName as clap::ValueEnum>::from_str(s, false)
+            .map(Self::from)
+            .map_err(|_| {
+                let names: Vec<&str> = <EnvName as clap::ValueEnum>::value_variants()
+                    .iter()
+                    .map(|e| e.as_str())
+                    .collect();
+                format!(
+                    "unknown environment {s:?}: one of {}, or gym:ID",
+                    names.join(", ")
+                )
+            })
+    }
+}
+
+/// `s` as a TOML string.
+fn toml_string(s: &str) -> String {
+    toml::Value::String(s.to_string()).to_string()
 }

@@ -13,8 +13,10 @@ mod config_file;
 mod docs;
 mod embedding;
 mod embedding_recommender;
+mod env_defaults;
 mod file_errors;
 mod flags;
+mod gym;
 mod ppo;
 mod ppo_recommender;
 mod run;
@@ -26,12 +28,15 @@ pub use config_file::ConfigFile;
 pub use embedding::EmbeddingConfig;
 pub use embedding_recommender::RecommenderEmbeddingConfig;
 pub use flags::{
-    EmbedderFlag, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
+    EmbedderFlag, EnvArg, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
+};
+pub use gym::{
+    Description, PYTHON_ENV, cannot_start_python, complete_gym, describe, parse_description, python,
 };
 pub use jsae_env_spec::{
-    EnvConfig, EnvName, GridworldConfig, GroupBy, LargeCatalogueConfig, MujocoConfig, Prices,
-    RecommenderConfig, RewardOn, SessionSource, SlotmachineConfig, StartRule, SyntheticConfig,
-    gridworld_action_motions, validate_env_config,
+    EnvConfig, EnvName, GridworldConfig, GroupBy, GymConfig, GymSpace, LargeCatalogueConfig,
+    MujocoConfig, Prices, RecommenderConfig, RewardOn, SessionSource, SlotmachineConfig, StartRule,
+    SyntheticConfig, gridworld_action_motions, validate_env_config,
 };
 pub use jsae_nn::DeviceKind;
 pub use ppo::{DEFAULT_MAX_ABS_REWARD, EMBEDDED_ENTROPY_LOG_STD_MAX, PpoConfig, UpdatePath};

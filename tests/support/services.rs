@@ -162,6 +162,7 @@ pub fn start_actor_secured(
 ) -> Service<ActorReport> {
     let (stop, signal) = stop_signal();
     let options = ActorOptions {
+        env_host: None,
         id,
         embedder: embedder.map(String::from),
         learner: learner.to_string(),

@@ -326,6 +326,10 @@ impl Services {
                 args.extend(["--record".into(), path.display().to_string()]);
                 args.extend(["--run-id".into(), run_id(config)]);
             }
+            if config.env == jsae_settings::EnvName::Gym {
+                // it starts its environment workers itself, their logs beside its own
+                args.extend(["--worker-logs".into(), absolute(&children.run.logs())?]);
+            }
             let name = format!("actor-{id}");
             actors.push(Service::start(children, &args, &name, false)?.0);
         }

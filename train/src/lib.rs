@@ -14,5 +14,6 @@ pub mod one_process;
 pub mod progress;
 
 pub use one_process::{
-    RunOptions, RunOutcome, TrainError, run_id, train_one_process, train_one_process_with,
+    RunOptions, RunOutcome, TrainError, actor_worker, run_id, train_one_process,
+    train_one_process_with,
 };

@@ -182,6 +182,49 @@ pub fn train_one_process_with(
     })
 }
 
+/// The run's actor workers ([`actor_worker`] for each id).
+fn actor_workers(
+    config: &TrainConfig,
+) -> Result<(Vec<ActorWorker>, Vec<jsae_remote_envs::Hosting>), TrainError> {
+    let mut actors = Vec::new();
+    let mut hosting = Vec::new();
+    for id in 0..config.actors as u64 {
+        let (actor, hosted) = actor_worker(config, id)?;
+        actors.push(actor);
+        hosting.extend(hosted);
+    }
+    Ok((actors, hosting))
+}
+
+/// Actor `id` of a run in this process: over built-in environments, or over a gym
+/// environment's workers, which this process starts and serves (a host on loopback,
+/// `environment.gym.workers` workers, at least one, their logs in the run's `logs/`); the
+/// hosting lasts as long as it is kept.
+pub fn actor_worker(
+    config: &TrainConfig,
+    id: u64,
+) -> Result<(ActorWorker, Option<jsae_remote_envs::Hosting>), TrainError> {
+    if config.env != jsae_settings::EnvName::Gym {
+        return Ok((ActorWorker::new(config, id, config.device)?, None));
+    }
+    let plan = jsae_remote_envs::HostPlan {
+        listen: "127.0.0.1:0".into(),
+        workers: (config.environment.gym.workers as usize).max(1),
+        log_dir: Some(RunDir::new(&config.out).logs()),
+        name: format!("{id}-"),
+    };
+    let security = jsae_net::security::Security::default();
+    let (pool, hosted) = jsae_remote_envs::host_on_own_runtime(
+        &config.environment.gym,
+        config.envs_per_actor,
+        &security,
+        &plan,
+    )
+    .map_err(TrainError::Service)?;
+    let actor = ActorWorker::with_pool(config, id, config.device, Box::new(pool));
+    Ok((actor, Some(hosted)))
+}
+
 fn lifecycle(e: anyhow::Error) -> TrainError {
     TrainError::Service(format!("{e:#}"))
 }
@@ -190,6 +233,9 @@ fn lifecycle(e: anyhow::Error) -> TrainError {
 /// their messages in lockstep on one thread.
 struct Lockstep {
     actors: Vec<ActorWorker>,
+    /// A gym environment's hosts and worker processes, one per actor (kept while the run
+    /// lasts).
+    _hosting: Vec<jsae_remote_envs::Hosting>,
     learner: LearnerRun,
     embedder: Option<EmbedderRun>,
     /// The newest embedding snapshot (what the learner's metrics and last checkpoint name).
@@ -204,9 +250,7 @@ impl Lockstep {
         resume: Resume,
         progress: &mut Progress,
     ) -> Result<Self, TrainError> {
-        let mut actors: Vec<ActorWorker> = (0..config.actors as u64)
-            .map(|id| ActorWorker::new(config, id, config.device))
-            .collect::<Result<_, _>>()?;
+        let (mut actors, hosting) = actor_workers(config)?;
         // each steps its share of a shared batch, as the learner service would tell it
         for (actor, envs) in actors.iter_mut().zip(config.actor_envs()) {
             actor.set_active_envs(envs);
@@ -216,6 +260,7 @@ impl Lockstep {
             .map_err(lifecycle)?;
         let mut lockstep = Self {
             actors,
+            _hosting: hosting,
             learner,
             embedder: None,
             last_embedding: None,

@@ -2,7 +2,7 @@
 //! inference per step ([`ActorWorker::collect`]), into the transitions the embedder learns
 //! from, one fragment per environment for the learner, and the recording's rows.
 
-use jsae_envs::{Step, step_all, step_threads};
+use jsae_envs::Step;
 use jsae_record::RecordedSteps;
 use jsae_wire::{ActionBatch, EpisodeStat, RolloutFragment, StateBatch, TransitionBatch};
 
@@ -35,11 +35,6 @@ impl ActorWorker {
         };
         let mut fragments = self.empty_fragments(rollout_steps, x_dim);
         let mut b = StepBuffers::new(self, k);
-        let threads = step_threads(
-            self.config.step_threads,
-            self.config.actors,
-            !self.config.one_process,
-        );
         for _ in 0..rollout_steps {
             b.policy_actions.clear();
             b.env_actions.clear();
@@ -62,7 +57,7 @@ impl ActorWorker {
             b.cut_states.clear();
             b.cut_envs.clear();
             b.after.clear();
-            step_all(&mut self.envs[..k], &b.env_actions, &mut b.steps, threads);
+            self.envs.step(&b.env_actions, &mut b.steps);
             let mut out = StepOutputs {
                 record_transitions,
                 transitions: &mut transitions,
@@ -138,7 +133,11 @@ impl ActorWorker {
         out: &mut StepOutputs<'_>,
     ) {
         let step = b.steps[i];
-        self.envs[i].push_state(&mut b.next);
+        if step.lost {
+            self.lose_step(i, acting, x_dim, b, out);
+            return;
+        }
+        self.envs.push_state(i, &mut b.next);
         let visit = if acting {
             self.visit_key(&b.next, i)
         } else {
@@ -158,7 +157,7 @@ impl ActorWorker {
             finished = Some(EpisodeStat {
                 ret: run.ret,
                 length: run.len,
-                success: self.envs[i].has_success().then_some(step.success),
+                success: self.envs.has_success().then_some(step.success),
             });
             *run = Running::default();
             self.episodes[i] += 1;
@@ -166,9 +165,9 @@ impl ActorWorker {
                 b.cut_states.push_row_of(&b.next, i);
                 b.cut_envs.push(i);
             }
-            self.envs[i].reset(&mut self.env_rngs[i]);
+            self.envs.reset(i, &mut self.env_rngs[i]);
         }
-        self.envs[i].push_state(&mut b.after);
+        self.envs.push_state(i, &mut b.after);
         if out.record_transitions {
             let t = &mut *out.transitions;
             t.states.push_row_of(&self.current, i);
@@ -190,6 +189,45 @@ impl ActorWorker {
             f.terminated.push(step.terminated);
             f.truncated.push(step.truncated);
         }
+    }
+}
+
+impl ActorWorker {
+    /// Environment `i` was lost before its step ([`Step::lost`]): no transition and no
+    /// fragment row; its episode ends truncated at the state it was in (the fragment's last
+    /// row, where it is this rollout's and still open, is marked truncated with that state
+    /// to bootstrap from) and is not counted; the environment starts another episode.
+    fn lose_step(
+        &mut self,
+        i: usize,
+        acting: bool,
+        x_dim: usize,
+        b: &mut StepBuffers,
+        out: &mut StepOutputs<'_>,
+    ) {
+        // the step's next state is the state it was in: later rows of `b.next` stay aligned
+        b.next.push_row_of(&self.current, i);
+        let f = &mut out.fragments[i];
+        let open = f.terminated.last() == Some(&false) && f.truncated.last() == Some(&false);
+        if acting && open {
+            if let Some(last) = f.truncated.last_mut() {
+                *last = true;
+            }
+            f.truncated_next_x
+                .extend_from_slice(&b.x[i * x_dim..(i + 1) * x_dim]);
+        }
+        if self.running[i].len > 0 {
+            tracing::warn!(
+                "actor {}: environment {i} was lost {} steps into its episode; the episode \
+                 ends truncated there and is not counted",
+                self.id,
+                self.running[i].len
+            );
+        }
+        self.running[i] = Running::default();
+        self.episodes[i] += 1;
+        self.envs.reset(i, &mut self.env_rngs[i]);
+        self.envs.push_state(i, &mut b.after);
     }
 }
 

@@ -129,6 +129,7 @@ impl Env for RecommenderEnv {
             terminated: leaves,
             truncated: !leaves && self.steps >= self.episode_len,
             success: false,
+            lost: false,
         }
     }
 
