@@ -49,6 +49,7 @@ fn pool(envs: usize, workers: usize) -> (RemotePool, jsae_remote_envs::Hosting) 
         workers,
         log_dir: None,
         name: String::new(),
+        worker_env: Vec::new(),
     };
     host_on_own_runtime(&cartpole(), envs, &Security::default(), &plan).expect("a host")
 }
@@ -97,7 +98,7 @@ fn cartpole_steps_on_two_workers_and_survives_one_killed() {
     pool.push_state(0, &mut states);
     assert_eq!(states.len(), 1);
 
-    let killed = hosting.workers.pids()[0];
+    let killed = hosting.workers.lock().expect("workers").pids()[0];
     let status = Command::new("kill")
         .args(["-9", &killed.to_string()])
         .status()
@@ -114,15 +115,28 @@ fn cartpole_steps_on_two_workers_and_survives_one_killed() {
     for &i in &lost {
         pool.reset(i, &mut rng);
     }
-    assert_eq!(pool.workers(), 1);
     for _ in 0..10 {
         for (i, s) in step_all(&mut pool, 0).iter().enumerate() {
-            assert!(!s.lost, "the survivor hosts all four now");
+            assert!(
+                !s.lost,
+                "the lost environments step again, on the survivor or the restart"
+            );
             if s.terminated || s.truncated {
                 pool.reset(i, &mut rng);
             }
         }
     }
+    // the killed worker is started again and joins
+    let start = Instant::now();
+    while pool.workers() < 2 {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the killed worker was not restarted"
+        );
+        step_all(&mut pool, 0);
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    assert_ne!(hosting.workers.lock().expect("workers").pids()[0], killed);
 }
 
 /// Starts `python -c SCRIPT URL` (or `python -m jsae.envs ARGS`) and waits for its exit:

@@ -79,15 +79,6 @@ pub async fn run(
         rollout_steps: (config.envs_per_actor * config.rollout_len) as u64,
         envs: u32::try_from(config.envs_per_actor).unwrap_or(0),
     };
-    let to_stepping = (policy_tx, control_tx, share.clone());
-    let follow = (
-        security.clone(),
-        options.learner.clone(),
-        gave_up_tx.clone(),
-    );
-    follow_learner(&mut tasks, follow, hello, to_stepping);
-    push_to_learner(&mut tasks, learner_channel, fragments_rx, reports_rx);
-
     // a gym environment's workers connect to this actor's environment host
     let mut hosting = None;
     let mut pool: Option<Box<dyn jsae_envs::EnvPool>> = None;
@@ -97,7 +88,7 @@ pub async fn run(
             .env_host
             .clone()
             .ok_or_else(|| anyhow::anyhow!("a gym environment needs --env-listen"))?;
-        let (remote, hosted) = jsae_remote_envs::host(
+        let (mut remote, hosted) = jsae_remote_envs::host(
             &config.environment.gym,
             config.envs_per_actor,
             &options.security,
@@ -105,11 +96,21 @@ pub async fn run(
         )
         .await
         .map_err(|e| anyhow::anyhow!(e))?;
+        remote.set_max_abs_reward(f64::from(config.ppo.max_abs_reward));
         net::logging::announce_listening("jsae-actor environments", hosted.addr);
         pool_stop = Some(remote.stopper());
         pool = Some(Box::new(remote));
         hosting = Some(hosted);
     }
+    let to_stepping = (policy_tx, control_tx, share.clone(), pool_stop.clone());
+    let follow = (
+        security.clone(),
+        options.learner.clone(),
+        gave_up_tx.clone(),
+    );
+    follow_learner(&mut tasks, follow, hello, to_stepping);
+    push_to_learner(&mut tasks, learner_channel, fragments_rx, reports_rx);
+
     let stop_flag = Arc::new(AtomicBool::new(false));
     let stop_all = {
         let (stop_flag, pool_stop) = (stop_flag.clone(), pool_stop.clone());
@@ -179,11 +180,13 @@ fn follow_embedder(
 }
 
 /// What the learner's stream tells the stepping thread: snapshots, the evaluation and
-/// finish controls, and this actor's share of the batch.
+/// finish controls, and this actor's share of the batch; and the remote environments'
+/// stop flag, which the run's end sets (a pool waiting for workers stops waiting).
 type ToStepping = (
     watch::Sender<Option<Arc<PolicySnapshot>>>,
     std::sync::mpsc::Sender<Control>,
     Arc<AtomicU64>,
+    Option<Arc<AtomicBool>>,
 );
 
 type GaveUpTx = mpsc::Sender<client::GaveUp>;
@@ -193,7 +196,7 @@ fn follow_learner(
     tasks: &mut tokio::task::JoinSet<()>,
     (security, url, gave_up): (Security, String, GaveUpTx),
     hello: pb::WatchRequest,
-    (policy, control, share): ToStepping,
+    (policy, control, share, pool_stop): ToStepping,
 ) {
     let id = hello.actor_id;
     tasks.spawn(async move {
@@ -216,6 +219,9 @@ fn follow_learner(
                 }
                 PolicyEvent::Finish => {
                     let _ = control.send(Control::Finish);
+                    if let Some(stop) = &pool_stop {
+                        stop.store(true, Ordering::Relaxed);
+                    }
                     false
                 }
                 PolicyEvent::Share(envs) => {
@@ -363,6 +369,7 @@ pub fn main(args: ActorArgs) -> std::process::ExitCode {
                     workers: config.environment.gym.workers as usize,
                     log_dir: args.worker_logs.clone(),
                     name: format!("{id}-"),
+                    worker_env: args.security.to_env(),
                 });
             let options = ActorOptions {
                 id,

@@ -206,6 +206,9 @@ fn step_until_done(
             continue;
         };
         stepper.rollout(worker, recorder, version, acting)?;
+        if let Some(reason) = worker.env_failure() {
+            anyhow::bail!("actor {}'s environments: {reason}", options.id);
+        }
     }
 }
 

@@ -185,6 +185,12 @@ impl ActorWorker {
         self.incarnation
     }
 
+    /// Why this actor's environments can no longer step (remote workers that will not run
+    /// again), if so.
+    pub fn env_failure(&self) -> Option<String> {
+        self.envs.failure()
+    }
+
     /// The environments' state space.
     pub fn state_space(&self) -> &StateSpace {
         &self.states

@@ -62,8 +62,10 @@ struct EvalOutput {
 
 fn evaluate(a: &EvalArgs) -> Result<EvalOutput, (u8, String)> {
     let dir = RunDir::new(&a.run);
-    let config = TrainConfig::from_layers(None, None, Some(&dir.config_toml()))
+    let mut config = TrainConfig::from_layers(None, None, Some(&dir.config_toml()))
         .map_err(|e| (2, e.to_string()))?;
+    // a run's config.toml does not name its folder; a gym run's workers log into it
+    config.out = a.run.clone();
     let ckpt = dir.checkpoints();
     let (version, policy_path) = match &a.checkpoint {
         // The version only labels the output: `policy-vN.bpk` names it, else 0.

@@ -55,7 +55,7 @@ fn a_gym_environment_trains_in_one_process() {
 /// The pid of the worker process whose command line names `name`.
 fn worker_pid(name: &str) -> Option<u32> {
     let out = Command::new("pgrep")
-        .args(["-f", &format!("jsae.envs.*--name {name}$")])
+        .args(["-f", &format!("jsae.envs.*--name {name}( |$)")])
         .output()
         .ok()?;
     String::from_utf8_lossy(&out.stdout)

@@ -35,8 +35,9 @@ pub enum GymSpace {
 /// The most discrete actions a (multi-)discrete action space may have, and the most
 /// categories of one observation factor.
 pub const MAX_GYM_DISCRETE: u64 = 1 << 24;
-/// The most elements a box may have.
-pub const MAX_GYM_BOX: u64 = 1 << 16;
+/// The most elements a box may have (a rollout fragment of raw observations, 128 rows of
+/// 16,384 float32, then stays within a message's 16 MiB).
+pub const MAX_GYM_BOX: u64 = 1 << 14;
 
 impl GymSpace {
     /// Elements of a box (the product of its shape).

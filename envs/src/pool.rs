@@ -31,6 +31,11 @@ pub trait EnvPool: Send {
     fn step_one(&mut self, i: usize, action: ActionRef<'_>) -> Step;
     /// Appends environment `i`'s current state to `out`.
     fn push_state(&self, i: usize, out: &mut StateBatch);
+    /// Why no environment can step any more (remote workers that will not run again); the
+    /// actor then stops with this reason. None while the pool can step.
+    fn failure(&self) -> Option<String> {
+        None
+    }
 }
 
 /// Built-in environments in this process, stepped on up to `threads` threads.

@@ -111,9 +111,13 @@ impl SpaceCodec {
 }
 
 /// Checks a step's reply fields: one reward, `terminated` and `truncated` per row, rewards
-/// finite and within [`MAX_ABS_REWARD`], never both ended flags on one row; and one reset
+/// finite and within `max_abs_reward`, never both ended flags on one row; and one reset
 /// observation row per ended episode (checked by the caller's decode).
-pub(crate) fn check_step_reply(reply: &pb::EnvReply, rows: usize) -> Result<usize, String> {
+pub(crate) fn check_step_reply(
+    reply: &pb::EnvReply,
+    rows: usize,
+    max_abs_reward: f64,
+) -> Result<usize, String> {
     if reply.rewards.len() != rows
         || reply.terminated.len() != rows
         || reply.truncated.len() != rows
@@ -125,9 +129,9 @@ pub(crate) fn check_step_reply(reply: &pb::EnvReply, rows: usize) -> Result<usiz
             reply.truncated.len()
         ));
     }
-    if let Some(r) = (reply.rewards.iter()).find(|r| !r.is_finite() || r.abs() > MAX_ABS_REWARD) {
+    if let Some(r) = (reply.rewards.iter()).find(|r| !r.is_finite() || r.abs() > max_abs_reward) {
         return Err(format!(
-            "a reward {r} (NaN, infinite or beyond {MAX_ABS_REWARD:e})"
+            "a reward {r} (NaN, infinite or beyond {max_abs_reward:e}, the run's ppo.max_abs_reward)"
         ));
     }
     let mut ended = 0;
@@ -214,21 +218,21 @@ mod tests {
             truncated: vec![false, false],
             ..pb::EnvReply::default()
         };
-        assert_eq!(check_step_reply(&reply, 2), Ok(1));
-        assert!(check_step_reply(&reply, 3).is_err());
+        assert_eq!(check_step_reply(&reply, 2, MAX_ABS_REWARD), Ok(1));
+        assert!(check_step_reply(&reply, 3, MAX_ABS_REWARD).is_err());
         let both = pb::EnvReply {
             terminated: vec![true],
             truncated: vec![true],
             rewards: vec![0.0],
             ..pb::EnvReply::default()
         };
-        assert!(check_step_reply(&both, 1).is_err());
+        assert!(check_step_reply(&both, 1, MAX_ABS_REWARD).is_err());
         let inf = pb::EnvReply {
             terminated: vec![false],
             truncated: vec![false],
             rewards: vec![f64::INFINITY],
             ..pb::EnvReply::default()
         };
-        assert!(check_step_reply(&inf, 1).is_err());
+        assert!(check_step_reply(&inf, 1, MAX_ABS_REWARD).is_err());
     }
 }

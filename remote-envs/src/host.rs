@@ -97,6 +97,17 @@ impl Lobby {
             ));
         }
         let (obs, act) = &self.spaces;
+        // a reply carries every environment's observation, and as many again where all end
+        // at once (a time limit): it must fit a message
+        let per_env = 8 * obs.state_space().stored_len() as u64 + 32;
+        let most = jsae_wire::MAX_MESSAGE_BYTES as u64 / per_env;
+        if u64::from(hello.envs) > most {
+            return Err(format!(
+                "{} environments of {} would not fit one message: at most {most} per worker",
+                hello.envs,
+                obs.describe()
+            ));
+        }
         for (what, said, want) in [
             ("observation", &hello.observation_space, obs),
             ("action", &hello.action_space, act),

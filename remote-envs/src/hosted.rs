@@ -3,6 +3,7 @@
 //! an actor process (the host then runs on a small runtime of its own).
 
 use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 
 use jsae_envs::GymConfig;
 use jsae_net::security::Security;
@@ -21,6 +22,9 @@ pub struct HostPlan {
     pub log_dir: Option<PathBuf>,
     /// Added to the workers' names (e.g. the actor's id).
     pub name: String,
+    /// Variables the workers get: the token and CA files the services take
+    /// (`SecurityFlags::to_env`), where this process was given them as flags.
+    pub worker_env: Vec<(&'static str, PathBuf)>,
 }
 
 /// A served host and its started workers: dropping it kills the workers and stops serving.
@@ -30,15 +34,18 @@ pub struct Hosting {
     pub url: String,
     /// The address it listens on.
     pub addr: std::net::SocketAddr,
-    /// The started workers.
-    pub workers: WorkerProcesses,
+    /// The started workers (the pool starts again one that exits).
+    pub workers: Arc<Mutex<WorkerProcesses>>,
     runtime: Option<tokio::runtime::Runtime>,
 }
 
 impl Drop for Hosting {
     fn drop(&mut self) {
         // the workers first (killed), then the host's runtime
-        self.workers = WorkerProcesses::default();
+        self.workers
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .kill_all();
         if let Some(rt) = self.runtime.take() {
             rt.shutdown_background();
         }
@@ -75,7 +82,7 @@ pub async fn host(
         (Some(o), Some(a)) => (o.clone(), a.clone()),
         _ => return Err(gym.spaces().map(|_| ()).err().unwrap_or_default()),
     };
-    let (pool, service) = RemotePool::new(&gym.id, spaces, envs)?;
+    let (mut pool, service) = RemotePool::new(&gym.id, spaces, envs)?;
     let listener = jsae_net::bind(&plan.listen).await.map_err(|e| {
         format!(
             "cannot listen on {} for environment workers: {e}",
@@ -114,8 +121,12 @@ pub async fn host(
             workers: n,
             log_dir: plan.log_dir.clone(),
             name: plan.name.clone(),
+            max_steps: gym.max_steps,
+            env: plan.worker_env.clone(),
         })?,
     };
+    let workers = Arc::new(Mutex::new(workers));
+    pool.supervise(workers.clone());
     Ok((
         pool,
         Hosting {

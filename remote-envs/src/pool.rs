@@ -8,7 +8,7 @@
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, mpsc};
+use std::sync::{Arc, Mutex, mpsc};
 use std::time::{Duration, Instant};
 
 use jsae_envs::{ActionRef, EnvPool, GymSpace, Step};
@@ -19,6 +19,7 @@ use tonic::Status;
 
 use crate::codec::{SpaceCodec, check_step_reply};
 use crate::host::{EnvHost, Event, Lobby};
+use crate::workers::WorkerProcesses;
 
 /// The longest a worker may take to answer one command before it counts as gone.
 pub const REPLY_TIMEOUT: Duration = Duration::from_secs(120);
@@ -59,6 +60,12 @@ pub struct RemotePool {
     seq: u64,
     gathered: bool,
     stop: Arc<AtomicBool>,
+    /// The workers this process started, started again when they exit.
+    supervised: Option<Arc<Mutex<WorkerProcesses>>>,
+    /// Why no environment can step any more (the pool then stops).
+    failure: Option<String>,
+    /// The largest reward magnitude taken (`ppo.max_abs_reward`, at most 1e9).
+    max_abs_reward: f64,
 }
 
 /// One worker's share of a command: its environment numbers and the slots they are.
@@ -106,6 +113,9 @@ impl RemotePool {
             seq: 0,
             gathered: false,
             stop: Arc::new(AtomicBool::new(false)),
+            supervised: None,
+            failure: None,
+            max_abs_reward: crate::codec::MAX_ABS_REWARD,
         };
         Ok((pool, EnvHost::new(lobby)))
     }
@@ -113,6 +123,29 @@ impl RemotePool {
     /// A flag that, set, makes the pool stop waiting for workers (its steps are then lost).
     pub fn stopper(&self) -> Arc<AtomicBool> {
         self.stop.clone()
+    }
+
+    /// Starts again the workers of `workers` that exit; where one cannot run again and no
+    /// worker is left, the pool fails ([`jsae_envs::EnvPool::failure`]).
+    pub fn supervise(&mut self, workers: Arc<Mutex<WorkerProcesses>>) {
+        self.supervised = Some(workers);
+    }
+
+    /// Rewards beyond `max` (the learner's `ppo.max_abs_reward`) are refused here, where the
+    /// worker sending them is told.
+    pub fn set_max_abs_reward(&mut self, max: f64) {
+        self.max_abs_reward = max.min(crate::codec::MAX_ABS_REWARD);
+    }
+
+    /// Checks the started workers: the reason when one will not run again.
+    fn check_workers(&mut self) -> Result<(), String> {
+        match &self.supervised {
+            Some(w) => w
+                .lock()
+                .unwrap_or_else(std::sync::PoisonError::into_inner)
+                .supervise(),
+            None => Ok(()),
+        }
     }
 
     /// Workers connected now.
@@ -161,7 +194,14 @@ impl RemotePool {
                 self.gathered = true;
                 return true;
             }
-            if self.stop.load(Ordering::Relaxed) {
+            if self.stop.load(Ordering::Relaxed) || self.failure.is_some() {
+                return false;
+            }
+            if let Err(reason) = self.check_workers()
+                && self.workers.is_empty()
+            {
+                tracing::error!("{reason}; no environment worker is left");
+                self.failure = Some(reason);
                 return false;
             }
             if !said && start.elapsed() > Duration::from_secs(2) {
@@ -187,8 +227,15 @@ impl RemotePool {
         }
     }
 
-    /// Reads the events of idle workers (one that went away is dropped).
+    /// Takes in the workers that joined and reads the events of idle ones (one that went
+    /// away is dropped).
     fn drain_events(&mut self) {
+        // a started worker that exited is started again (it joins as a spare); one that will
+        // not run again fails the pool only once no worker is left (`wait_for_workers`)
+        if let Err(reason) = self.check_workers() {
+            tracing::debug!("{reason}");
+        }
+        self.admit();
         while let Ok((id, event)) = self.events.try_recv() {
             match event {
                 Event::Gone(reason) => self.drop_worker(id, &reason, false),
@@ -365,7 +412,7 @@ impl RemotePool {
         out: &mut [Step],
     ) -> Result<(), String> {
         let rows = share.slots.len();
-        let ended = check_step_reply(reply, rows)?;
+        let ended = check_step_reply(reply, rows, self.max_abs_reward)?;
         let mut reached = StateBatch::empty(&self.states);
         self.codec
             .decode_observations(reply.observations.as_ref(), rows, &mut reached)?;
@@ -429,6 +476,10 @@ impl EnvPool for RemotePool {
 
     fn has_success(&self) -> bool {
         false
+    }
+
+    fn failure(&self) -> Option<String> {
+        self.failure.clone()
     }
 
     /// Starts slot `i`'s next episode: the state its worker sent when the last one ended,

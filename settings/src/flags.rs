@@ -42,9 +42,14 @@ impl RunFlags {
         let env = self.env.as_ref().map(|e| e.name);
         let mut c = TrainConfig::from_layers_with(env, self.algo, self.config.as_deref(), &sets)?;
         c.seed = self.seed.unwrap_or(c.seed);
-        if c.env == EnvName::Gym && c.environment.gym.observation.is_none() {
+        let named_here = self.env.as_ref().is_some_and(|e| e.gym_id.is_some());
+        if c.env == EnvName::Gym && (c.environment.gym.observation.is_none() || named_here) {
             // a gym environment's spaces (and the defaults that follow them) come from the
-            // environment itself
+            // environment itself; an id on the command line is asked again, whatever a
+            // settings file says of another's
+            if named_here {
+                c.environment.gym.observation = None;
+            }
             crate::complete_gym(&mut c).map_err(ConfigError::Invalid)?;
             let described = c.environment.gym.clone();
             let mut sets = sets;

@@ -212,15 +212,17 @@ pub fn actor_worker(
         workers: (config.environment.gym.workers as usize).max(1),
         log_dir: Some(RunDir::new(&config.out).logs()),
         name: format!("{id}-"),
+        worker_env: Vec::new(),
     };
     let security = jsae_net::security::Security::default();
-    let (pool, hosted) = jsae_remote_envs::host_on_own_runtime(
+    let (mut pool, hosted) = jsae_remote_envs::host_on_own_runtime(
         &config.environment.gym,
         config.envs_per_actor,
         &security,
         &plan,
     )
     .map_err(TrainError::Service)?;
+    pool.set_max_abs_reward(f64::from(config.ppo.max_abs_reward));
     let actor = ActorWorker::with_pool(config, id, config.device, Box::new(pool));
     Ok((actor, Some(hosted)))
 }
@@ -314,6 +316,11 @@ impl Lockstep {
         progress: &mut Progress,
     ) -> Result<(), TrainError> {
         let rollout = self.actors[i].collect(config.rollout_len);
+        if let Some(reason) = self.actors[i].env_failure() {
+            return Err(TrainError::Service(format!(
+                "actor {i}'s environments: {reason}"
+            )));
+        }
         if let (Some(r), Some(steps)) = (recorder, &rollout.recorded) {
             r.write(&rollout.transitions, steps)?;
         }

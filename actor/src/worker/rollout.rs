@@ -85,6 +85,8 @@ impl ActorWorker {
                     .extend_from_slice(&b.x[i * x_dim..(i + 1) * x_dim]);
                 f.actor_env_steps = self.env_steps;
             }
+            // an environment lost at every step of the rollout has nothing to send
+            fragments.retain(|f| !f.rewards.is_empty());
         } else {
             fragments.clear();
         }

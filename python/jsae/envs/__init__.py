@@ -15,24 +15,31 @@ docs/src/environments/bring-your-own.md.
 from .spaces import UnsupportedSpace
 from .worker import PROTOCOL, RefusedByActor, serve
 
-__all__ = ["PROTOCOL", "RefusedByActor", "UnsupportedSpace", "serve", "describe"]
+__all__ = ["PROTOCOL", "RefusedByActor", "UnsupportedSpace", "serve", "describe", "describe_env"]
+
+
+def describe_env(env) -> str:
+    """The spaces and time limit of the environment `env` as TOML (the keys of a run's
+    `[environment.gym]`, `id` aside): for a class of your own, what the actor's settings
+    file needs (`[environment.gym]` with `id` and these lines)."""
+    from .spaces import to_toml
+
+    spec = getattr(env, "spec", None)
+    max_steps = getattr(spec, "max_episode_steps", None) or 0
+    return (
+        f"observation = {to_toml(env.observation_space)}\n"
+        f"action = {to_toml(env.action_space)}\n"
+        f"max_steps = {int(max_steps)}\n"
+    )
 
 
 def describe(env_id: str) -> str:
-    """The spaces and time limit of `gymnasium.make(env_id)` as TOML (the keys of a run's
-    `[environment.gym]`): what `jsae train --env gym:ID` asks before the run starts."""
+    """`describe_env` of `gymnasium.make(env_id)`: what `jsae train --env gym:ID` asks
+    before the run starts."""
     import gymnasium
-
-    from .spaces import to_toml
 
     env = gymnasium.make(env_id)
     try:
-        spec = getattr(env, "spec", None)
-        max_steps = getattr(spec, "max_episode_steps", None) or 0
-        return (
-            f"observation = {to_toml(env.observation_space)}\n"
-            f"action = {to_toml(env.action_space)}\n"
-            f"max_steps = {int(max_steps)}\n"
-        )
+        return describe_env(env)
     finally:
         env.close()

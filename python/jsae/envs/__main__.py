@@ -22,6 +22,8 @@ def parse(argv):
     p.add_argument("--tls-ca", default=os.environ.get("JSAE_TLS_CA"),
                    help="PEM CA the actor's certificate is checked with (default: $JSAE_TLS_CA)")
     p.add_argument("--tls-domain", help="the name the actor's certificate is checked against")
+    p.add_argument("--max-episode-steps", type=int, default=0,
+                   help="the time limit the run uses (default: the environment's own)")
     p.add_argument("--connect-timeout", type=float, default=60.0,
                    help="seconds to wait for the actor to answer (default 60)")
     args = p.parse_args(argv)

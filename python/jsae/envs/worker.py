@@ -163,6 +163,13 @@ def serve(
             except Exception as e:  # the environment failed: say so, and stop
                 outbox.put(pb.EnvUp(error=f"{type(e).__name__}: {e}"))
                 outbox.put(None)
+                # the actor ends the stream once it has read the error: wait for that, so
+                # that closing the channel does not cancel the error on its way
+                try:
+                    for _ in commands:
+                        pass
+                except grpc.RpcError:
+                    pass
                 raise
             outbox.put(pb.EnvUp(reply=reply))
             answered += 1
@@ -187,6 +194,8 @@ def main_loop(args) -> int:
     import gymnasium
 
     def make_env():
+        if args.max_episode_steps:
+            return gymnasium.make(args.env, max_episode_steps=args.max_episode_steps)
         return gymnasium.make(args.env)
 
     try:
