@@ -14,7 +14,7 @@ use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 use jsae_run_dir::RunDir;
-use jsae_settings::TrainConfig;
+use jsae_settings::{ConfigError, TrainConfig};
 
 use crate::grid::{Grid, RunSpec};
 
@@ -185,8 +185,12 @@ fn unfinished_runs(
             continue;
         }
         std::fs::write(&check, &config).map_err(io(&check))?;
+        // a gym run's spaces come from its environment, as `jsae train` asks them
         TrainConfig::from_layers(None, None, Some(&check))
-            .and_then(|c| c.validate())
+            .and_then(|mut c| {
+                jsae_settings::complete_gym(&mut c).map_err(ConfigError::Invalid)?;
+                c.validate()
+            })
             .map_err(|e| SweepError::Settings {
                 run: name(),
                 reason: e.to_string(),
