@@ -407,12 +407,7 @@ impl ActorWorker {
                     Some(a) => env_action.extend_from(&ActionBatch::Discrete(vec![a])),
                     None => self.env_actions(&policy_action, &mut env_action),
                 }
-                let step = match &env_action {
-                    ActionBatch::Discrete(a) => self.envs.step_one(env, ActionRef::Discrete(a[0])),
-                    ActionBatch::Continuous { data, .. } => {
-                        self.envs.step_one(env, ActionRef::Continuous(data))
-                    }
-                };
+                let step = self.envs.step_one(env, ActionRef::row(&env_action, 0));
                 run.ret += step.reward;
                 run.len += 1;
                 // `RUST_LOG=jsae_actor=trace jsae eval ...`: the episodes step by step (where a

@@ -6,7 +6,7 @@
 
 #![forbid(unsafe_code)]
 
-use jsae_spaces::{ActionSpace, StateBatch, StateSpace};
+use jsae_spaces::{ActionBatch, ActionSpace, StateBatch, StateSpace};
 use rand_chacha::ChaCha8Rng;
 
 /// An action handed to an environment.
@@ -16,6 +16,18 @@ pub enum ActionRef<'a> {
     Discrete(u32),
     /// A continuous action (not clipped by the caller).
     Continuous(&'a [f32]),
+}
+
+impl<'a> ActionRef<'a> {
+    /// Row `i` of `actions`.
+    pub fn row(actions: &'a ActionBatch, i: usize) -> Self {
+        match actions {
+            ActionBatch::Discrete(a) => Self::Discrete(a[i]),
+            ActionBatch::Continuous { dim, data } => {
+                Self::Continuous(&data[i * dim..(i + 1) * dim])
+            }
+        }
+    }
 }
 
 /// What one step produced.

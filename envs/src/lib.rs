@@ -40,12 +40,7 @@ pub fn step_all(
     out: &mut [Step],
     threads: usize,
 ) {
-    let step_one = |env: &mut Box<dyn Env>, i: usize| match actions {
-        ActionBatch::Discrete(a) => env.step(ActionRef::Discrete(a[i])),
-        ActionBatch::Continuous { dim, data } => {
-            env.step(ActionRef::Continuous(&data[i * dim..(i + 1) * dim]))
-        }
-    };
+    let step_one = |env: &mut Box<dyn Env>, i: usize| env.step(ActionRef::row(actions, i));
     let threads = threads.clamp(1, envs.len().max(1));
     if threads == 1 {
         for (i, (env, o)) in envs.iter_mut().zip(out.iter_mut()).enumerate() {

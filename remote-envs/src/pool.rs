@@ -533,7 +533,7 @@ impl EnvPool for RemotePool {
 
     fn step(&mut self, actions: &ActionBatch, out: &mut [Step]) {
         let slots: Vec<(usize, ActionRef<'_>)> = (0..out.len())
-            .map(|i| (i, action_row(actions, i)))
+            .map(|i| (i, ActionRef::row(actions, i)))
             .collect();
         self.step_slots(&slots, out);
     }
@@ -546,15 +546,6 @@ impl EnvPool for RemotePool {
 
     fn push_state(&self, i: usize, out: &mut StateBatch) {
         out.push_row_of(&self.slots[i].state, 0);
-    }
-}
-
-fn action_row(actions: &ActionBatch, i: usize) -> ActionRef<'_> {
-    match actions {
-        ActionBatch::Discrete(a) => ActionRef::Discrete(a[i]),
-        ActionBatch::Continuous { dim, data } => {
-            ActionRef::Continuous(&data[i * dim..(i + 1) * dim])
-        }
     }
 }
 
