@@ -238,14 +238,17 @@ where
         let _ = stopping_tx.send(true);
         let _ = stopped_tx.send(());
     };
-    let serving = server
-        .add_service(health_service)
-        .add_service(security.guard(reflection()?))
-        .add_service(security.guard(jsae_wire::TooLargeIsExhausted(service)))
-        .serve_with_incoming_shutdown(
-            crate::accept::spoken(listener, crate::accept::FIRST_BYTES_TIMEOUT),
-            signal,
-        );
+    let serving =
+        server
+            .add_service(health_service)
+            .add_service(security.guard(reflection()?))
+            .add_service(security.guard(jsae_wire::WatchesClientEnd(
+                jsae_wire::TooLargeIsExhausted(service),
+            )))
+            .serve_with_incoming_shutdown(
+                crate::accept::spoken(listener, crate::accept::FIRST_BYTES_TIMEOUT),
+                signal,
+            );
     tokio::pin!(serving);
     // a graceful shutdown waits for every open call to end; a client that stops reading a
     // server stream never lets it end, so after SHUTDOWN_GRACE its connection is dropped

@@ -282,6 +282,7 @@ pub(crate) async fn receive_sessions(
 ) -> Result<pb::SubmitSummary, Status> {
     let deadline = tokio::time::Instant::now() + SUBMIT_CALL_TIMEOUT;
     let peer = request.remote_addr();
+    let client_end = jsae_wire::ClientEnd::of(&request);
     let mut stream = request.into_inner();
     let mut call = budget.enter(peer).await.map_err(nothing_stored)?;
     let mut stager = inner.stage()?.map(|staged| Stager {
@@ -325,6 +326,13 @@ pub(crate) async fn receive_sessions(
             }
         }
         index += 1;
+    }
+    // tonic ends the stream above on the client's cancel as on its own end: only the end
+    // the client sent commits
+    if client_end.is_some_and(|end| !end.ended()) {
+        return Err(nothing_stored(RpcError::Cancelled(
+            "the client cancelled the call before it ended its stream".into(),
+        )));
     }
     if index == 0 {
         return Err(RpcError::InvalidArgument("no sessions: the stream was empty".into()).into());
@@ -440,5 +448,80 @@ mod tests {
             calls.push(budget.enter(at).await.expect("room"));
         }
         calls
+    }
+
+    /// A request body of one framed session, then the reset a client's cancel is.
+    struct OneSessionThenReset(Option<bytes::Bytes>);
+
+    impl http_body::Body for OneSessionThenReset {
+        type Data = bytes::Bytes;
+        type Error = Status;
+
+        fn poll_frame(
+            mut self: std::pin::Pin<&mut Self>,
+            _: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<Option<Result<http_body::Frame<bytes::Bytes>, Status>>> {
+            std::task::Poll::Ready(Some(match self.0.take() {
+                Some(data) => Ok(http_body::Frame::data(data)),
+                None => Err(Status::cancelled("stream reset by the client")),
+            }))
+        }
+    }
+
+    #[tokio::test]
+    async fn a_stream_the_client_cancelled_commits_nothing() {
+        // tonic reads the cancel as the stream's end; the call's ClientEnd says it was not
+        let store = std::env::temp_dir().join(format!("jsae-cancel-unit-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&store);
+        let mut c = jsae_settings::TrainConfig::defaults(
+            jsae_settings::EnvName::Recommender,
+            jsae_settings::Algo::Jsae,
+        );
+        let r = &mut c.environment.recommender;
+        r.source = jsae_settings::SessionSource::Synthetic;
+        (r.top_n, r.synthetic.items, r.synthetic.sessions) = (20, 20, 100);
+        r.store_dir = store.clone();
+        let rec = Recommender::new(
+            &c,
+            crate::baseline::PolicyChoice::Popular,
+            jsae_nn::DeviceKind::Flex,
+        )
+        .expect("recommender");
+        let session = pb::Session {
+            session_id: "cancelled".into(),
+            purchases: vec![pb::Purchase {
+                item_id: "item-1".into(),
+                price: 1.0,
+                time_unix_ms: 0,
+            }],
+        };
+        let message = session.encode_to_vec();
+        let mut framed = vec![0u8];
+        framed.extend((message.len() as u32).to_be_bytes());
+        framed.extend(message);
+        let body = OneSessionThenReset(Some(framed.into()));
+        let stream = Streaming::new_request(
+            tonic_prost::ProstDecoder::<pb::Session>::default(),
+            body,
+            None,
+            None,
+        );
+        let mut request = tonic::Request::new(stream);
+        request
+            .extensions_mut()
+            .insert(jsae_wire::ClientEnd::default());
+        let refused = receive_sessions(&Arc::new(rec), &SubmitBudget::default(), request)
+            .await
+            .expect_err("a cancelled call");
+        assert_eq!(refused.code(), tonic::Code::Cancelled, "{refused:?}");
+        assert!(
+            refused
+                .message()
+                .contains("nothing of this call was stored"),
+            "{refused:?}"
+        );
+        let log = std::fs::read(store.join("sessions.jsonl")).unwrap_or_default();
+        assert!(log.is_empty(), "stored: {}", String::from_utf8_lossy(&log));
+        let _ = std::fs::remove_dir_all(&store);
     }
 }

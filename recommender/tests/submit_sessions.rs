@@ -1,6 +1,6 @@
 //! `SubmitSessions` over real loopback gRPC against a Recommender with a session store
 //! (serving the popular reference policy: no run needed): a call whose stream the client
-//! resets (cancels) mid-way stores nothing, a session_id is stored once across calls and
+//! resets (cancels) mid-way stores nothing, nor does one it cancels after a whole session, a session_id is stored once across calls and
 //! restarts, the limits on bytes per message, bytes per call and calls per connection answer
 //! RESOURCE_EXHAUSTED with nothing of the call stored, and calls that send nothing give
 //! their slots up to a call that waits its turn.
@@ -225,6 +225,61 @@ async fn a_cancelled_call_stores_nothing_and_a_session_id_is_stored_once_across_
     let mut want: Vec<String> = (0..10).map(|i| format!("s-{i}")).collect();
     want.extend(["big-0", "big-1", "new"].map(String::from));
     assert_eq!(stored_ids(&store), want);
+    let _ = std::fs::remove_dir_all(&store);
+}
+
+/// Sends `session` as a SubmitSessions call over a bare HTTP/2 stream, waits, then cancels
+/// the call as gRPC clients do (RST_STREAM with CANCEL) without ever ending its stream.
+async fn send_then_cancel(url: &str, session: &pb::Session) {
+    use prost::Message as _;
+    let tcp = tokio::net::TcpStream::connect(url.trim_start_matches("http://"))
+        .await
+        .expect("connects");
+    let (h2, connection) = h2::client::handshake(tcp).await.expect("HTTP/2");
+    let connection = tokio::spawn(connection);
+    let request = tonic::codegen::http::Request::builder()
+        .method("POST")
+        .uri(format!("{url}/jsae.v1.Recommender/SubmitSessions"))
+        .header("content-type", "application/grpc")
+        .header("te", "trailers")
+        .body(())
+        .expect("request");
+    let mut h2 = h2.ready().await.expect("ready");
+    let (_response, mut send) = h2.send_request(request, false).expect("sent");
+    let message = session.encode_to_vec();
+    let mut framed = vec![0u8];
+    framed.extend((message.len() as u32).to_be_bytes());
+    framed.extend(message);
+    send.send_data(framed.into(), false).expect("data");
+    // long enough for the service to have read the session before the cancel arrives
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    send.send_reset(h2::Reason::CANCEL);
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    drop(h2);
+    connection.abort();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_call_the_client_cancels_after_a_whole_session_stores_nothing() {
+    // tonic reads a client's cancel as the end of its stream: the service must not take it
+    // for the end the client sends, which commits. Whether the service is still running the
+    // call when it would commit is a race (the unit test in submit.rs fixes its outcome);
+    // this runs the call over HTTP/2 as a gRPC client cancels it
+    let store = temp_store("cancel-after-session");
+    let mut served = serve(&store).await;
+    send_then_cancel(&served.url, &session("cancelled", 2, 8)).await;
+    wait_for("the cancelled call's staging file to go", || {
+        staging(&store).0 == 0
+    })
+    .await;
+    assert!(stored_ids(&store).is_empty(), "{:?}", stored_ids(&store));
+    let summary = submit(&mut served.client, vec![session("cancelled", 2, 8)]).await;
+    assert_eq!(
+        (summary.sessions_accepted, summary.sessions_duplicate),
+        (1, 0),
+        "the cancelled call stored its session: {summary:?}"
+    );
+    served.stop().await;
     let _ = std::fs::remove_dir_all(&store);
 }
 

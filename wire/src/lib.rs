@@ -9,13 +9,14 @@
 //! Layout: `messages` (the messages), `validate` (checks every receiver runs on input),
 //! `grpc` (the generated gRPC code as [`pb`], conversions, snapshot chunking, size limits),
 //! `codec` (the strict decoder every generated service uses), `status` (the one mapping of
-//! refusals to gRPC codes), `random_id` (identifiers nobody can guess) and `catalogue_tag`
+//! refusals to gRPC codes), `client_end` (whether a client ended its stream or cancelled it), `random_id` (identifiers nobody can guess) and `catalogue_tag`
 //! (the catalogue a recommender embedding's snapshot bytes are of). The spaces and
 //! batches the messages carry come from `jsae_spaces` and are re-exported here.
 
 #![forbid(unsafe_code)]
 
 mod catalogue_tag;
+mod client_end;
 mod codec;
 mod grpc;
 mod messages;
@@ -24,6 +25,7 @@ mod status;
 mod validate;
 
 pub use catalogue_tag::CatalogueTag;
+pub use client_end::{ClientEnd, WatchesClientEnd};
 pub use grpc::{
     Assembled, FILE_DESCRIPTOR_SET, MAX_MESSAGE_BYTES, MAX_SNAPSHOT_BYTES, Reassembler,
     SNAPSHOT_CHUNK, SnapshotChunks, chunk_snapshot, embedding_chunks, pb, policy_chunks,

@@ -27,6 +27,9 @@ pub enum RpcError {
     /// The service failed (a write to disk).
     #[error("{0}")]
     Internal(String),
+    /// The client cancelled the call.
+    #[error("{0}")]
+    Cancelled(String),
 }
 
 impl RpcError {
@@ -46,6 +49,7 @@ impl From<RpcError> for tonic::Status {
             RpcError::PermissionDenied(m) => Self::permission_denied(m),
             RpcError::AlreadyExists(m) => Self::already_exists(m),
             RpcError::Internal(m) => Self::internal(m),
+            RpcError::Cancelled(m) => Self::cancelled(m),
         }
     }
 }
@@ -169,6 +173,7 @@ mod tests {
                 tonic::Code::FailedPrecondition,
             ),
             (RpcError::Internal("e".into()), tonic::Code::Internal),
+            (RpcError::Cancelled("h".into()), tonic::Code::Cancelled),
             (
                 RpcError::AlreadyExists("g".into()),
                 tonic::Code::AlreadyExists,
