@@ -38,6 +38,11 @@ pub trait EmbeddingTraining {
     /// `states` (`items[i]` after row `i`) under the next-item head (None without it).
     fn next_item_loss(&self, states: &StateBatch, items: &[u32]) -> Option<Tensor<1>>;
 
+    /// The next-item loss against distributions: the mean cross-entropy of `probs` (`[rows,
+    /// n]` row-major, each summing to 1) after each of `states` under the head (None
+    /// without it).
+    fn next_item_soft_loss(&self, states: &StateBatch, probs: &[f32]) -> Option<Tensor<1>>;
+
     /// Copies every part of `source` whose shape matches this model's (both of the same
     /// representation); returns the names of the parts copied.
     fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str>;
@@ -104,6 +109,13 @@ impl EmbeddingTraining for EmbeddingModel {
         let logits = self.next_item_logits(self.embed_states(states))?;
         let target = index_column(self, items.iter().map(|&i| i64::from(i)).collect());
         Some(cross_entropy(logits, target))
+    }
+
+    fn next_item_soft_loss(&self, states: &StateBatch, probs: &[f32]) -> Option<Tensor<1>> {
+        let logits = self.next_item_logits(self.embed_states(states))?;
+        let [rows, n] = logits.dims();
+        let q = nn::tensor2(probs.to_vec(), rows, n, self.device());
+        Some(soft_cross_entropy(logits, q))
     }
 
     fn warm_start_from(&mut self, source: &EmbeddingModel) -> Vec<&'static str> {
@@ -205,6 +217,15 @@ pub fn cross_entropy(logits: Tensor<2>, target: Tensor<2, Int>) -> Tensor<1> {
     let lse = (logits.clone() - shift.clone()).exp().sum_dim(1).log() + shift;
     let picked = logits.gather(1, target);
     (lse - picked).mean()
+}
+
+/// Mean cross-entropy of target distributions `q` (`[batch, n]`, rows summing to 1) under
+/// `logits`: `logsumexp(logits) - sum_i q_i logits_i`.
+pub fn soft_cross_entropy(logits: Tensor<2>, q: Tensor<2>) -> Tensor<1> {
+    let shift = logits.clone().max_dim(1).detach(); // [batch, 1]
+    let lse = (logits.clone() - shift.clone()).exp().sum_dim(1).log() + shift;
+    let expected = (logits * q).sum_dim(1);
+    (lse - expected).mean()
 }
 
 // Batches are validated against the model's spaces before they reach it, so a mismatch is a

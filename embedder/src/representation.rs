@@ -17,6 +17,15 @@ use crate::EmbeddingTraining;
 use crate::catalogue::CatalogueTables;
 use crate::replay::Minibatch;
 
+/// What the next-item loss is taken against, per state.
+#[derive(Debug, Clone, Copy)]
+pub enum NextItemTargets<'a> {
+    /// The item bought after each state.
+    Bought(&'a [u32]),
+    /// A distribution over the items after each state, `[states, n]` row-major.
+    Estimate(&'a [f32]),
+}
+
 /// A model the embedder trains from transitions and publishes as snapshots.
 pub trait RepresentationModel: std::fmt::Debug + Send {
     /// The state space it takes.
@@ -29,14 +38,14 @@ pub trait RepresentationModel: std::fmt::Debug + Send {
     /// loss) before the step (JSAE: `-log P(s'|s,a)` and f's; AE: the state and the action
     /// reconstruction; RA: `-log f(a | e(s, s'))` and 0).
     fn train_step(&mut self, optim: &mut ModuleOptimizer, mb: &Minibatch, lr: f64) -> (f32, f32);
-    /// One optimiser step on the next-item loss alone (logged purchases: `items[i]` bought
-    /// after row `i` of `states`); the loss before the step, None for a model without the
-    /// next-item head (nothing trained).
+    /// One optimiser step on the next-item loss alone (logged purchases: the item bought
+    /// after each row of `states`, or a distribution over the items); the loss before the
+    /// step, None for a model without the next-item head (nothing trained).
     fn train_next_item_step(
         &mut self,
         _optim: &mut ModuleOptimizer,
         _states: &StateBatch,
-        _items: &[u32],
+        _targets: NextItemTargets<'_>,
         _lr: f64,
     ) -> Option<f32> {
         None
@@ -82,10 +91,13 @@ impl RepresentationModel for EmbeddingModel {
         &mut self,
         optim: &mut ModuleOptimizer,
         states: &StateBatch,
-        items: &[u32],
+        targets: NextItemTargets<'_>,
         lr: f64,
     ) -> Option<f32> {
-        let loss = self.next_item_loss(states, items)?;
+        let loss = match targets {
+            NextItemTargets::Bought(items) => self.next_item_loss(states, items)?,
+            NextItemTargets::Estimate(probs) => self.next_item_soft_loss(states, probs)?,
+        };
         let grads = GradientsParams::from_grads(loss.backward(), self.net());
         let net = optim.step(lr, self.net().clone(), grads);
         self.set_net(net);
@@ -212,15 +224,18 @@ impl RepresentationModel for TrainingModel {
         &mut self,
         optim: &mut ModuleOptimizer,
         states: &StateBatch,
-        items: &[u32],
+        targets: NextItemTargets<'_>,
         lr: f64,
     ) -> Option<f32> {
-        match &mut self.catalogue {
-            Some(c) => {
+        match (&mut self.catalogue, targets) {
+            (Some(c), NextItemTargets::Bought(items)) => {
                 self.model.net().next_item.as_ref()?;
                 Some(c.next_item_step(&mut self.model, optim, states, items, lr))
             }
-            None => self.model.train_next_item_step(optim, states, items, lr),
+            // a distribution over a million items per state is not built (refused by the
+            // settings at catalogue scale)
+            (Some(_), NextItemTargets::Estimate(_)) => None,
+            (None, targets) => self.model.train_next_item_step(optim, states, targets, lr),
         }
     }
 

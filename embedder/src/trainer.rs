@@ -13,6 +13,7 @@ use rand::seq::SliceRandom;
 use rand_chacha::ChaCha8Rng;
 
 mod logged;
+mod logged_estimate;
 
 pub use logged::{LoggedItems, LoggedReport};
 

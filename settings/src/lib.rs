@@ -26,7 +26,7 @@ pub use algo::{Algo, Representation};
 pub use batch::share_envs;
 pub use config_file::ConfigFile;
 pub use embedding::EmbeddingConfig;
-pub use embedding_recommender::RecommenderEmbeddingConfig;
+pub use embedding_recommender::{LoggedTargets, RecommenderEmbeddingConfig};
 pub use flags::{
     EmbedderFlag, EnvArg, ListenFlag, RunFlags, SERVICE_ENV_HELP, SERVICE_SEED_HELP, device_parser,
 };

@@ -7,11 +7,13 @@
 
 use std::sync::Arc;
 
+use jsae_settings::LoggedTargets;
 use jsae_wire::{CatalogueTag, StateBatch};
 use rand::seq::SliceRandom;
 
 use super::EmbedderTrainer;
-use crate::representation::RepresentationModel;
+use super::logged_estimate::CountedEstimate;
+use crate::representation::{NextItemTargets, RepresentationModel};
 
 /// Logged purchases: the state before each purchase, as the actors encode states, and the
 /// item bought (the caller, which knows the data, reads them; the held-out sessions never).
@@ -28,7 +30,7 @@ pub struct LoggedItems {
 
 impl LoggedItems {
     /// Rows `rows` of the logs.
-    fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
+    pub(super) fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
         let items = rows.iter().map(|&r| self.items[r]).collect();
         // an empty batch of the logs' kind (not a copy of them: this runs per minibatch)
         let mut states = match &self.states {
@@ -83,6 +85,24 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             return Err(format!(
                 "logged purchases: item {bad} is not one of the {n} actions"
             ));
+        }
+        if self.config.recommender.logged_targets != LoggedTargets::Bought {
+            let (states, actions) = (self.model.state_space(), self.model.action_space());
+            if self.config.samples_items(states, actions) {
+                return Err(format!(
+                    "embedding.recommender.logged_targets = \"counted\" builds a distribution \
+                     over every item per state: not at catalogue scale ({n} items, \
+                     embedding.sampled_softmax_from = {})",
+                    self.config.sampled_softmax_from
+                ));
+            }
+            if !matches!(&logged.states, StateBatch::Categorical { factors, .. } if *factors >= 2) {
+                return Err(
+                    "embedding.recommender.logged_targets = \"counted\" needs states of two \
+                     items or more (the estimate is keyed by the last two)"
+                        .into(),
+                );
+            }
         }
         self.logged = Some(logged);
         Ok(())
@@ -139,6 +159,15 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         let total = (epochs * chunks).min(self.config.recommender.logged_pretrain_max_steps);
         let epochs = total.div_ceil(chunks);
         let mut taken = 0;
+        // `counted` targets: the logs' estimate after each state, and states ahead
+        let targets = self.config.recommender.logged_targets;
+        let counted = (targets != LoggedTargets::Bought)
+            .then(|| {
+                let items = self.model.action_space().num_discrete().unwrap_or(0);
+                CountedEstimate::count(&logged, items)
+            })
+            .flatten();
+        let ahead_share = self.config.recommender.logged_ahead_share;
         for epoch in 1..=epochs {
             order.shuffle(&mut self.rng);
             let (mut sum, mut count) = (0.0, 0);
@@ -146,10 +175,32 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                 let done = taken as f64 / total as f64;
                 taken += 1;
                 let lr = if anneal { lr0 * (1.0 - done) } else { lr0 };
-                let (states, items) = logged.gather(rows);
-                let step = self
-                    .model
-                    .train_next_item_step(&mut self.optim.0, &states, &items, lr);
+                let step = match &counted {
+                    Some(estimate) => {
+                        let ahead = (ahead_share * rows.len() as f64).round() as usize;
+                        let batch = estimate.batch(&logged, rows, ahead, &mut self.rng);
+                        let best = estimate.best_items(&batch.probs);
+                        let targets = match targets {
+                            LoggedTargets::CountedBest => NextItemTargets::Bought(&best),
+                            _ => NextItemTargets::Estimate(&batch.probs),
+                        };
+                        self.model.train_next_item_step(
+                            &mut self.optim.0,
+                            &batch.states,
+                            targets,
+                            lr,
+                        )
+                    }
+                    None => {
+                        let (states, items) = logged.gather(rows);
+                        self.model.train_next_item_step(
+                            &mut self.optim.0,
+                            &states,
+                            NextItemTargets::Bought(&items),
+                            lr,
+                        )
+                    }
+                };
                 if let Some(l) = step {
                     sum += l;
                     count += 1;
@@ -311,6 +362,25 @@ mod tests {
             without.2 < 0.3,
             "random play alone does not teach it: {without:?}"
         );
+    }
+
+    #[test]
+    fn counted_targets_and_states_ahead_teach_the_head_too() {
+        for targets in [LoggedTargets::Counted, LoggedTargets::CountedBest] {
+            let mut rng = ChaCha8Rng::seed_from_u64(6);
+            let logged = Arc::new(logs(2048, &mut rng));
+            let mut t = trainer(40);
+            t.config.recommender.logged_targets = targets;
+            t.config.recommender.logged_ahead_share = 0.25;
+            t.set_logged(logged.clone()).expect("fits");
+            t.ingest(&random_play(&mut rng)).expect("valid");
+            t.poll().expect("serialises").expect("pre-trained");
+            let hit = hits(&t, &logged);
+            assert!(
+                hit > 0.6,
+                "{targets:?}: the nearest item is mostly the one bought: {hit}"
+            );
+        }
     }
 
     #[test]
