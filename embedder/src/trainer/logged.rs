@@ -30,7 +30,7 @@ pub struct LoggedItems {
 
 impl LoggedItems {
     /// Rows `rows` of the logs.
-    pub(super) fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
+    fn gather(&self, rows: &[usize]) -> (StateBatch, Vec<u32>) {
         let items = rows.iter().map(|&r| self.items[r]).collect();
         // an empty batch of the logs' kind (not a copy of them: this runs per minibatch)
         let mut states = match &self.states {
@@ -90,15 +90,15 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
             let (states, actions) = (self.model.state_space(), self.model.action_space());
             if self.config.samples_items(states, actions) {
                 return Err(format!(
-                    "embedding.recommender.logged_targets = \"counted\" builds a distribution \
-                     over every item per state: not at catalogue scale ({n} items, \
+                    "embedding.recommender.logged_targets: counted targets need a distribution \
+                     over every item per state, not at catalogue scale ({n} items, \
                      embedding.sampled_softmax_from = {})",
                     self.config.sampled_softmax_from
                 ));
             }
             if !matches!(&logged.states, StateBatch::Categorical { factors, .. } if *factors >= 2) {
                 return Err(
-                    "embedding.recommender.logged_targets = \"counted\" needs states of two \
+                    "embedding.recommender.logged_targets: counted targets need states of two \
                      items or more (the estimate is keyed by the last two)"
                         .into(),
                 );
@@ -179,9 +179,12 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                     Some(estimate) => {
                         let ahead = (ahead_share * rows.len() as f64).round() as usize;
                         let batch = estimate.batch(&logged, rows, ahead, &mut self.rng);
-                        let best = estimate.best_items(&batch.probs);
+                        let best;
                         let targets = match targets {
-                            LoggedTargets::CountedBest => NextItemTargets::Bought(&best),
+                            LoggedTargets::CountedBest => {
+                                best = estimate.best_items(&batch.probs);
+                                NextItemTargets::Bought(&best)
+                            }
                             _ => NextItemTargets::Estimate(&batch.probs),
                         };
                         self.model.train_next_item_step(
