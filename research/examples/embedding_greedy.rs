@@ -2,11 +2,14 @@
 //! (JSAE with `embedding.recommender.next_item_coef`), the run's latest embedding played as
 //! a policy, recommending the item nearest to `h(phi(s))` (the head's most likely next item,
 //! which the JSAE policy's mean starts at), under `recommender-baseline`'s protocol; and the
-//! share of logged purchases it predicts (top 1), beside the greedy rule's.
+//! share of logged purchases it predicts (top 1), beside the greedy rule's. In the states its
+//! play visits, it also names how often the head's item is the most likely item of the
+//! estimate counted from the logs (`logged_targets = "counted-best"`'s target) and how often
+//! that item is the rule's.
 //!
 //!   cargo run --release -p jsae-research --example embedding_greedy -- RUN_DIR [RUN_DIR ...]
 
-use std::collections::HashSet;
+use std::collections::{HashMap, HashSet};
 
 use anyhow::{Context, Result, bail};
 use jsae_envs::recsys::RecommenderEnv;
@@ -51,6 +54,32 @@ fn main() -> Result<()> {
             bail!("categorical states expected");
         };
         let model = env.model().clone();
+        // the counted estimate, keyed as the embedder's logged pre-training keys it
+        let n = model.catalogue().len();
+        let width = n + 1;
+        let columns = |row: &[u32]| -> Vec<u32> {
+            row.iter()
+                .enumerate()
+                .map(|(f, &v)| (f * width) as u32 + v)
+                .collect()
+        };
+        let logged_rows: Vec<(Vec<u32>, u32)> = data
+            .chunks_exact(*factors)
+            .zip(&next)
+            .map(|(row, &item)| (columns(row), item))
+            .collect();
+        let prior = jsae_agent::prior::CountPrior::count(
+            factors * width,
+            n,
+            logged_rows.iter().map(|(c, k)| (c.as_slice(), *k)),
+        );
+        let counted_best = |row: &[u32]| -> u32 {
+            let mut logits = vec![0.0f32; n];
+            prior.add_to(&columns(row), &mut logits);
+            (0..n)
+                .max_by(|&i, &j| logits[i].total_cmp(&logits[j]))
+                .unwrap_or(0) as u32
+        };
         let (mut head_hits, mut rule_hits) = (0usize, 0usize);
         for (row, &bought) in data.chunks_exact(*factors).zip(&next) {
             head_hits += usize::from(pick(row) == bought);
@@ -66,24 +95,37 @@ fn main() -> Result<()> {
         let buckets = config.embedding.recommender.pair_buckets.max(1);
         let items = model.catalogue().len() as u32 + 1; // each factor's slots, "none" included
         let bucket = |b: u32, l: u32| jsae_nn::pair_bucket(b, l + items, 0, buckets);
-        let owned: HashSet<usize> = logged.iter().map(|&(b, l)| bucket(b, l)).collect();
-        // (agreements, states, expected reward lost to the rule's item): unlogged pairs with
-        // a zero row, unlogged pairs with another pair's row, logged pairs
-        let mut agree = [(0usize, 0usize, 0.0f64); 3];
+        let mut owners: HashMap<usize, usize> = HashMap::new();
+        for &(b, l) in &logged {
+            *owners.entry(bucket(b, l)).or_default() += 1;
+        }
+        // per kind of state (unlogged pairs whose bucket no logged pair owns, unlogged pairs
+        // whose bucket one does, logged pairs alone in their bucket, logged pairs sharing it):
+        // (agreements with the rule, states, expected reward lost to the rule's item)
+        let mut agree = [(0usize, 0usize, 0.0f64); 4];
+        // per kind: (the head's item is the counted best, the counted best is the rule's,
+        // expected reward the counted best loses to the rule)
+        let mut counted = [(0usize, 0usize, 0.0f64); 4];
         let r = returns(&mut env, 2000, config.eval_seed(), "", |env, _| {
             let h = env.history();
             let a = pick(h);
             let (b, l) = (h[h.len() - 2], h[h.len() - 1]);
-            let kind = if logged.contains(&(b, l)) {
-                2
-            } else {
-                usize::from(owned.contains(&bucket(b, l)))
+            let sharing = owners.get(&bucket(b, l)).copied().unwrap_or(0);
+            let kind = match (logged.contains(&(b, l)), sharing) {
+                (true, 1) => 2,
+                (true, _) => 3,
+                (false, 0) => 0,
+                (false, _) => 1,
             };
             let rule = Reference::MostLikely.best(&model, h);
             let expected = model.expected_rewards(b, l);
             agree[kind].0 += usize::from(rule == a);
             agree[kind].1 += 1;
             agree[kind].2 += expected[rule as usize] - expected[a as usize];
+            let best = counted_best(h);
+            counted[kind].0 += usize::from(best == a);
+            counted[kind].1 += usize::from(best == rule);
+            counted[kind].2 += expected[rule as usize] - expected[best as usize];
             a
         });
         let share = |(a, n, _): (usize, usize, f64)| a as f64 / n.max(1) as f64;
@@ -97,7 +139,11 @@ fn main() -> Result<()> {
             rule_hits as f64 / next.len() as f64
         );
         for (kind, name) in [
-            (2, "whose pair the logs hold"),
+            (2, "whose pair the logs hold, its row its own"),
+            (
+                3,
+                "whose pair the logs hold, its row shared with another logged pair",
+            ),
             (0, "whose pair they do not, its row zero"),
             (1, "whose pair they do not, its row another pair's"),
         ] {
@@ -108,6 +154,14 @@ fn main() -> Result<()> {
                 agree[kind].1 as f64 / agree.iter().map(|k| k.1).sum::<usize>().max(1) as f64,
                 share(agree[kind]),
                 agree[kind].2 / 2000.0
+            );
+            let states = agree[kind].1.max(1) as f64;
+            println!(
+                "    the counted estimate's best item: the head's in {:.3}, the rule's in {:.3}, \
+                 expected reward it loses to the rule {:.3} an episode",
+                counted[kind].0 as f64 / states,
+                counted[kind].1 as f64 / states,
+                counted[kind].2 / 2000.0
             );
         }
     }

@@ -86,23 +86,14 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                 "logged purchases: item {bad} is not one of the {n} actions"
             ));
         }
-        if self.config.recommender.logged_targets != LoggedTargets::Bought {
-            let (states, actions) = (self.model.state_space(), self.model.action_space());
-            if self.config.samples_items(states, actions) {
-                return Err(format!(
-                    "embedding.recommender.logged_targets: counted targets need a distribution \
-                     over every item per state, not at catalogue scale ({n} items, \
-                     embedding.sampled_softmax_from = {})",
-                    self.config.sampled_softmax_from
-                ));
-            }
-            if !matches!(&logged.states, StateBatch::Categorical { factors, .. } if *factors >= 2) {
-                return Err(
-                    "embedding.recommender.logged_targets: counted targets need states of two \
-                     items or more (the estimate is keyed by the last two)"
-                        .into(),
-                );
-            }
+        let two_items =
+            matches!(&logged.states, StateBatch::Categorical { factors, .. } if *factors >= 2);
+        if self.logged_targets() != LoggedTargets::Bought && !two_items {
+            return Err(
+                "embedding.recommender.logged_targets: counted targets need states of two \
+                 items or more (the estimate is keyed by the last two)"
+                    .into(),
+            );
         }
         self.logged = Some(logged);
         Ok(())
@@ -135,6 +126,18 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         }
     }
 
+    /// What the logged passes teach: `logged_targets`, except at catalogue scale
+    /// (`embedding.sampled_softmax_from`), where a distribution over every item per state does
+    /// not fit and the item bought is the target whatever the setting (the recommender's JSAE
+    /// defaults ask for `counted-best`, and a million-item catalogue trains with them).
+    fn logged_targets(&self) -> LoggedTargets {
+        let (states, actions) = (self.model.state_space(), self.model.action_space());
+        match self.config.recommender.logged_targets {
+            _ if self.config.samples_items(states, actions) => LoggedTargets::Bought,
+            targets => targets,
+        }
+    }
+
     /// The logged passes, when the settings ask and logs were given (None otherwise).
     pub(super) fn pretrain_on_logs(&mut self) -> Option<LoggedReport> {
         let epochs = self.config.recommender.logged_pretrain_epochs;
@@ -160,7 +163,15 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         let epochs = total.div_ceil(chunks);
         let mut taken = 0;
         // `counted` targets: the logs' estimate after each state, and states ahead
-        let targets = self.config.recommender.logged_targets;
+        let targets = self.logged_targets();
+        if targets != self.config.recommender.logged_targets {
+            tracing::info!(
+                "logged passes: the item bought as the target at catalogue scale \
+                 (embedding.recommender.logged_targets applies below \
+                 embedding.sampled_softmax_from = {} items)",
+                self.config.sampled_softmax_from
+            );
+        }
         let counted = (targets != LoggedTargets::Bought)
             .then(|| {
                 let items = self.model.action_space().num_discrete().unwrap_or(0);
@@ -384,6 +395,16 @@ mod tests {
                 "{targets:?}: the nearest item is mostly the one bought: {hit}"
             );
         }
+    }
+
+    #[test]
+    fn at_catalogue_scale_the_logged_passes_teach_the_item_bought() {
+        let mut t = trainer(1);
+        t.config.recommender.logged_targets = LoggedTargets::CountedBest;
+        assert_eq!(t.logged_targets(), LoggedTargets::CountedBest);
+        // the recommender's JSAE defaults ask for counted targets at every size
+        t.config.sampled_softmax_from = ITEMS as usize;
+        assert_eq!(t.logged_targets(), LoggedTargets::Bought);
     }
 
     #[test]
