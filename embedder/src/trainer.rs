@@ -15,6 +15,8 @@ use rand_chacha::ChaCha8Rng;
 mod logged;
 mod logged_estimate;
 
+pub use logged_estimate::CountedEstimate;
+
 pub use logged::{LoggedItems, LoggedReport};
 
 use crate::pretrain_progress::{PretrainObserver, PretrainProgress};

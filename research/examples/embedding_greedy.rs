@@ -54,32 +54,14 @@ fn main() -> Result<()> {
             bail!("categorical states expected");
         };
         let model = env.model().clone();
-        // the counted estimate, keyed as the embedder's logged pre-training keys it
-        let n = model.catalogue().len();
-        let width = n + 1;
-        let columns = |row: &[u32]| -> Vec<u32> {
-            row.iter()
-                .enumerate()
-                .map(|(f, &v)| (f * width) as u32 + v)
-                .collect()
+        // the counted estimate, as the embedder's logged pre-training counts it
+        let logs = jsae_embedder::LoggedItems {
+            states: states.clone(),
+            items: next.clone(),
+            catalogue: None,
         };
-        let logged_rows: Vec<(Vec<u32>, u32)> = data
-            .chunks_exact(*factors)
-            .zip(&next)
-            .map(|(row, &item)| (columns(row), item))
-            .collect();
-        let prior = jsae_agent::prior::CountPrior::count(
-            factors * width,
-            n,
-            logged_rows.iter().map(|(c, k)| (c.as_slice(), *k)),
-        );
-        let counted_best = |row: &[u32]| -> u32 {
-            let mut logits = vec![0.0f32; n];
-            prior.add_to(&columns(row), &mut logits);
-            (0..n)
-                .max_by(|&i, &j| logits[i].total_cmp(&logits[j]))
-                .unwrap_or(0) as u32
-        };
+        let estimate = jsae_embedder::CountedEstimate::count(&logs, model.catalogue().len())
+            .context("the counted estimate needs two-item states")?;
         let (mut head_hits, mut rule_hits) = (0usize, 0usize);
         for (row, &bought) in data.chunks_exact(*factors).zip(&next) {
             head_hits += usize::from(pick(row) == bought);
@@ -122,7 +104,7 @@ fn main() -> Result<()> {
             agree[kind].0 += usize::from(rule == a);
             agree[kind].1 += 1;
             agree[kind].2 += expected[rule as usize] - expected[a as usize];
-            let best = counted_best(h);
+            let best = estimate.best_item(h);
             counted[kind].0 += usize::from(best == a);
             counted[kind].1 += usize::from(best == rule);
             counted[kind].2 += expected[rule as usize] - expected[best as usize];

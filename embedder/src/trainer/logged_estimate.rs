@@ -14,7 +14,7 @@ use super::logged::LoggedItems;
 
 /// The counted estimate over `n` items, keyed by a categorical state's factors.
 #[derive(Debug)]
-pub(super) struct CountedEstimate {
+pub struct CountedEstimate {
     prior: CountPrior,
     /// Items (actions).
     n: usize,
@@ -26,7 +26,7 @@ pub(super) struct CountedEstimate {
 
 impl CountedEstimate {
     /// Counts the logs (None for real states, or fewer than two factors).
-    pub(super) fn count(logged: &LoggedItems, n: usize) -> Option<Self> {
+    pub fn count(logged: &LoggedItems, n: usize) -> Option<Self> {
         let StateBatch::Categorical { factors, data } = &logged.states else {
             return None;
         };
@@ -66,6 +66,14 @@ impl CountedEstimate {
         for l in logits.iter_mut() {
             *l /= sum;
         }
+    }
+
+    /// The estimate's most likely item after the state `row` (its factors): the
+    /// `counted-best` target there.
+    pub fn best_item(&self, row: &[u32]) -> u32 {
+        let mut probs = Vec::with_capacity(self.n);
+        self.push_probs(row, &mut probs);
+        self.best_items(&probs)[0]
     }
 
     /// The most likely item of each estimate in `probs` (`[states, n]`).
