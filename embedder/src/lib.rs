@@ -35,4 +35,6 @@ pub use pretrain_progress::{PRETRAIN_PHASE, PretrainProgress};
 pub use recorded::{RecordedPretraining, pretrain_from_recording};
 pub use representation::{RepresentationModel, TrainingModel};
 pub use structure::ActionStructure;
-pub use trainer::{CountedEstimate, EmbedderStats, EmbedderTrainer, LoggedItems, LoggedReport};
+pub use trainer::{
+    CountedEstimate, EmbedderStats, EmbedderTrainer, LoggedItems, LoggedReport, LookaheadEstimate,
+};

@@ -14,8 +14,10 @@ use rand_chacha::ChaCha8Rng;
 
 mod logged;
 mod logged_estimate;
+mod logged_lookahead;
 
 pub use logged_estimate::CountedEstimate;
+pub use logged_lookahead::LookaheadEstimate;
 
 pub use logged::{LoggedItems, LoggedReport};
 

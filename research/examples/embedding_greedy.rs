@@ -5,7 +5,8 @@
 //! share of logged purchases it predicts (top 1), beside the greedy rule's. In the states its
 //! play visits, it also names how often the head's item is the most likely item of the
 //! estimate counted from the logs (`logged_targets = "counted-best"`'s target) and how often
-//! that item is the rule's.
+//! that item is the rule's, and how often the head's item is the `lookahead` target (planned
+//! at the simulator's lift).
 //!
 //!   cargo run --release -p jsae-research --example embedding_greedy -- RUN_DIR [RUN_DIR ...]
 
@@ -62,6 +63,10 @@ fn main() -> Result<()> {
         };
         let estimate = jsae_embedder::CountedEstimate::count(&logs, model.catalogue().len())
             .context("the counted estimate needs two-item states")?;
+        let mut plan =
+            jsae_embedder::LookaheadEstimate::count(&states, &next, model.catalogue().len())
+                .context("the lookahead needs two-item states")?;
+        plan.set_boost(config.environment.recommender.boost);
         let (mut head_hits, mut rule_hits) = (0usize, 0usize);
         for (row, &bought) in data.chunks_exact(*factors).zip(&next) {
             head_hits += usize::from(pick(row) == bought);
@@ -88,6 +93,8 @@ fn main() -> Result<()> {
         // per kind: (the head's item is the counted best, the counted best is the rule's,
         // expected reward the counted best loses to the rule)
         let mut counted = [(0usize, 0usize, 0.0f64); 4];
+        // per kind: the head's item is the lookahead target
+        let mut planned = [0usize; 4];
         let r = returns(&mut env, 2000, config.eval_seed(), "", |env, _| {
             let h = env.history();
             let a = pick(h);
@@ -108,6 +115,7 @@ fn main() -> Result<()> {
             counted[kind].0 += usize::from(best == a);
             counted[kind].1 += usize::from(best == rule);
             counted[kind].2 += expected[rule as usize] - expected[best as usize];
+            planned[kind] += usize::from(plan.target(h) == a);
             a
         });
         let share = |(a, n, _): (usize, usize, f64)| a as f64 / n.max(1) as f64;
@@ -140,10 +148,12 @@ fn main() -> Result<()> {
             let states = agree[kind].1.max(1) as f64;
             println!(
                 "    the counted estimate's best item: the head's in {:.3}, the rule's in {:.3}, \
-                 expected reward it loses to the rule {:.3} an episode",
+                 expected reward it loses to the rule {:.3} an episode; the lookahead target: \
+                 the head's in {:.3}",
                 counted[kind].0 as f64 / states,
                 counted[kind].1 as f64 / states,
-                counted[kind].2 / 2000.0
+                counted[kind].2 / 2000.0,
+                planned[kind] as f64 / states
             );
         }
     }

@@ -5,8 +5,12 @@
 //! resulting context, computed exactly and cached per context). Both are played under
 //! `recommender-baseline`'s protocol. A small gap says the recommender is nearly a
 //! contextual bandit: what a recommendation does to later states is worth little.
+//! Then the same lookahead planned on the logs alone, as JSAE's `lookahead` targets plan it
+//! (`jsae_embedder::LookaheadEstimate`: the logs' interpolated estimate, an assumed lift),
+//! played under the same protocol at lifts 1 (greedy on the estimate), 2, 3 and 4: what the
+//! head would return if it learnt those targets exactly.
 //!
-//!   cargo run --release -p jsae-research --example lookahead_value [SEED]
+//!   cargo run --release -p jsae-research --example lookahead_value [SEED] [movielens100k]
 
 use std::collections::HashMap;
 
@@ -35,6 +39,9 @@ impl OneStep<'_> {
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut config = TrainConfig::defaults(EnvName::Recommender, Algo::Ppo);
     config.seed = std::env::args().nth(1).map_or(Ok(1001), |s| s.parse())?;
+    if std::env::args().nth(2).as_deref() == Some("movielens100k") {
+        config.environment.recommender.source = jsae_settings::SessionSource::Movielens100k;
+    }
     let mut env = RecommenderEnv::new(&config.environment)?;
     let model_env = RecommenderEnv::new(&config.environment)?;
     let model = model_env.model();
@@ -73,5 +80,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         r.return_mean,
         v1.value.len()
     );
+    let (states, bought) = env.logged_steps();
+    let mut plan = jsae_embedder::LookaheadEstimate::count(&states, &bought, items as usize)
+        .ok_or("the logs' states are not two items")?;
+    for boost in [1.0, 2.0, 3.0, 4.0] {
+        plan.set_boost(boost);
+        let r = returns(&mut env, episodes, config.eval_seed(), "", |env, _| {
+            plan.target(env.history())
+        });
+        println!(
+            "lookahead on the logs' estimate, lift {boost}: {:.3}",
+            r.return_mean
+        );
+    }
     Ok(())
 }

@@ -13,6 +13,7 @@ use rand::seq::SliceRandom;
 
 use super::EmbedderTrainer;
 use super::logged_estimate::CountedEstimate;
+use super::logged_lookahead::LookaheadEstimate;
 use crate::representation::{NextItemTargets, RepresentationModel};
 
 /// Logged purchases: the state before each purchase, as the actors encode states, and the
@@ -138,6 +139,43 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
         }
     }
 
+    /// The logs' interpolated estimate for `lookahead` targets, its lift set or measured on
+    /// the random-play transitions in the replay buffer (1, no planning, when none of them
+    /// bought the recommendation).
+    fn lookahead_estimate(&self, logged: &LoggedItems) -> Option<LookaheadEstimate> {
+        let items = self.model.action_space().num_discrete()?;
+        let mut plan = LookaheadEstimate::count(&logged.states, &logged.items, items)?;
+        let boost = match self.config.recommender.lookahead_boost {
+            b if b > 0.0 => b,
+            _ => {
+                let play = self
+                    .replay
+                    .gather(&(0..self.replay.len()).collect::<Vec<_>>());
+                let (
+                    jsae_wire::ActionBatch::Discrete(actions),
+                    StateBatch::Categorical { factors, data },
+                ) = (&play.actions, &play.next_states)
+                else {
+                    return Some(plan);
+                };
+                let bought: Vec<u32> = data
+                    .chunks_exact(*factors)
+                    .map(|r| r[factors - 1])
+                    .collect();
+                let measured = plan.measure_boost(&play.states, actions, &bought);
+                tracing::info!(
+                    transitions = actions.len(),
+                    bought = actions.iter().zip(&bought).filter(|(a, b)| a == b).count(),
+                    "lookahead targets: a recommendation's lift measured on random play: {}",
+                    measured.map_or("none bought, 1 (no planning)".into(), |b| format!("{b:.2}"))
+                );
+                measured.unwrap_or(1.0)
+            }
+        };
+        plan.set_boost(boost);
+        Some(plan)
+    }
+
     /// The logged passes, when the settings ask and logs were given (None otherwise).
     pub(super) fn pretrain_on_logs(&mut self) -> Option<LoggedReport> {
         let epochs = self.config.recommender.logged_pretrain_epochs;
@@ -178,6 +216,9 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                 CountedEstimate::count(&logged, items)
             })
             .flatten();
+        let mut lookahead = (targets == LoggedTargets::Lookahead)
+            .then(|| self.lookahead_estimate(&logged))
+            .flatten();
         let ahead_share = self.config.recommender.logged_ahead_share;
         for epoch in 1..=epochs {
             order.shuffle(&mut self.rng);
@@ -191,8 +232,12 @@ impl<M: RepresentationModel> EmbedderTrainer<M> {
                         let ahead = (ahead_share * rows.len() as f64).round() as usize;
                         let batch = estimate.batch(&logged, rows, ahead, &mut self.rng);
                         let best;
-                        let targets = match targets {
-                            LoggedTargets::CountedBest => {
+                        let targets = match (targets, lookahead.as_mut()) {
+                            (LoggedTargets::Lookahead, Some(plan)) => {
+                                best = plan.targets_of(&batch.states);
+                                NextItemTargets::Bought(&best)
+                            }
+                            (LoggedTargets::CountedBest | LoggedTargets::Lookahead, _) => {
                                 best = estimate.best_items(&batch.probs);
                                 NextItemTargets::Bought(&best)
                             }
@@ -380,7 +425,11 @@ mod tests {
 
     #[test]
     fn counted_targets_and_states_ahead_teach_the_head_too() {
-        for targets in [LoggedTargets::Counted, LoggedTargets::CountedBest] {
+        for targets in [
+            LoggedTargets::Counted,
+            LoggedTargets::CountedBest,
+            LoggedTargets::Lookahead,
+        ] {
             let mut rng = ChaCha8Rng::seed_from_u64(6);
             let logged = Arc::new(logs(2048, &mut rng));
             let mut t = trainer(40);
