@@ -105,8 +105,7 @@ impl LookaheadEstimate {
     pub fn probs(&self, before: u32, last: u32, out: &mut [f32]) {
         let (one, two) = self.contexts(before, last);
         let (t1, t2) = (mass(one), mass(two));
-        let shared =
-            MIX * SMOOTHING / (t1 + SMOOTHING) + (1.0 - MIX) * SMOOTHING / (t2 + SMOOTHING);
+        let shared = popularity_weight(t1, t2);
         for (o, &p) in out.iter_mut().zip(&self.popularity) {
             *o = shared * p;
         }
@@ -131,8 +130,7 @@ impl LookaheadEstimate {
     fn best_probability(&self, before: u32, last: u32) -> f32 {
         let (one, two) = self.contexts(before, last);
         let (t1, t2) = (mass(one), mass(two));
-        let shared =
-            MIX * SMOOTHING / (t1 + SMOOTHING) + (1.0 - MIX) * SMOOTHING / (t2 + SMOOTHING);
+        let shared = popularity_weight(t1, t2);
         let p = |k: u32| {
             shared * self.popularity[k as usize]
                 + MIX * count_of(one, k) / (t1 + SMOOTHING)
@@ -241,6 +239,11 @@ impl LookaheadEstimate {
         }
         Some(0.5 * (lo + hi))
     }
+}
+
+/// The weight popularity gets in a context whose two levels saw `t1` and `t2` purchases.
+fn popularity_weight(t1: f32, t2: f32) -> f32 {
+    MIX * SMOOTHING / (t1 + SMOOTHING) + (1.0 - MIX) * SMOOTHING / (t2 + SMOOTHING)
 }
 
 fn mass(items: &Bought) -> f32 {
